@@ -1,0 +1,127 @@
+"""Command line: `crowd-ik play | mouse | bench | export | scenes`.
+
+Each subcommand's work lives in its own module (play.py, mouse.py, bench.py, export.py, scene.py);
+this file only declares the arguments and maps errors to exit codes:
+0 done; 1 failure at run time; 2 bad input or an existing output without --force; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from crowd_ik import __version__
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class UsageError(ValueError):
+    """Bad input the user can fix; printed as one line, exit code 2."""
+
+
+def _add_common_runtime(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto", help="Taichi backend (default: auto = CUDA if present, else CPU)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads for Taichi (default: all cores)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="crowd-ik",
+        description="Batched inverse kinematics for crowds of characters, a SUPERHOT-style bullet game, and its video.",
+    )
+    parser.add_argument("--version", action="version", version=f"crowd-ik {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    play = sub.add_parser("play", help="render a gameplay video of a scene (default: the arena)")
+    play.add_argument("scene", nargs="?", default=None, help="scene TOML (default: the built-in arena)")
+    play.add_argument("-o", "--output", default=None, help="OUT.mp4 (H.264), OUT.webm (VP8), DIR/ (PNG frames), or a .png with --still (default: ./<scene>.mp4)")
+    length = play.add_mutually_exclusive_group()
+    length.add_argument("--frames", type=int, default=None, help="number of video frames")
+    length.add_argument("--seconds", type=float, default=None, help="video length in seconds")
+    play.add_argument("--size", default=None, metavar="WxH", help="frame size, e.g. 1280x720 (even numbers)")
+    play.add_argument("--fps", type=float, default=None, help="video frame rate")
+    play.add_argument("--seed", type=int, default=None, help="random seed (overrides the scene)")
+    play.add_argument("--solver", choices=("fabrik", "dls", "ccd"), default=None, help="IK method (overrides the scene)")
+    play.add_argument("--stats", default=None, metavar="F.json", help="write the run summary as JSON")
+    play.add_argument("--still", type=int, default=None, metavar="K", help="write only frame K as a PNG (-o F.png)")
+    play.add_argument("--live", action="store_true", help="play in a window (WASD to move, mouse to aim, click to fire)")
+    play.add_argument("--record", default=None, metavar="F.csv", help="with --live: save the player's inputs")
+    play.add_argument("--inputs", default=None, metavar="F.csv", help="replay recorded inputs headless")
+    play.add_argument("--clip", default=None, metavar="F.npz", help="also save every character's root transforms and joint angles")
+    play.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    _add_common_runtime(play)
+    play.set_defaults(handler="crowd_ik.play:run")
+
+    mouse = sub.add_parser("mouse", help="single-character IK: drag the target with the mouse, or replay a path to video")
+    mouse.add_argument("--bones", type=int, default=4, help="planar chain bones (default 4)")
+    mouse.add_argument("--rig", choices=("chain", "humanoid"), default="chain", help="chain (planar) or humanoid (3D)")
+    mouse.add_argument("--method", choices=("newton", "dls", "fabrik", "ccd", "follow"), default="dls", help="IK method (default dls)")
+    mouse.add_argument("--limits", action="store_true", help="honour joint limits")
+    mouse.add_argument("--path", default=None, metavar="PATH.csv", help="replay a target path (CSV t,x,y) to video")
+    mouse.add_argument("--keyframes", default=None, metavar="FILE.csv", help="ease between key poses (CSV duration_s, angles in degrees)")
+    mouse.add_argument("--k1", type=float, default=0.2, help="ease-in end, 0..1 (default 0.2)")
+    mouse.add_argument("--k2", type=float, default=0.75, help="ease-out start, k1..1 (default 0.75)")
+    mouse.add_argument("--fps", type=float, default=None, help="resample the path on t at this rate")
+    mouse.add_argument("--size", default="720x720", metavar="WxH", help="frame size (default 720x720)")
+    mouse.add_argument("-o", "--output", default=None, help="OUT.mp4 | OUT.webm | DIR/")
+    mouse.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    _add_common_runtime(mouse)
+    mouse.set_defaults(handler="crowd_ik.mouse:run")
+
+    bench = sub.add_parser("bench", help="IK throughput against character count, solver and backend, beside a NumPy baseline")
+    bench.add_argument("--chars", default=None, help="comma-separated character counts (default 100,1000,10000,100000)")
+    bench.add_argument("--solver", default=None, help="comma-separated: fabrik,dls,ccd (default all)")
+    bench.add_argument("--rig", default=None, help="comma-separated: chain16,humanoid (default both)")
+    bench.add_argument("--arch", default=None, help="comma-separated: cpu,cuda (default cpu, plus cuda when present)")
+    bench.add_argument("--threads", type=int, default=None, help="CPU threads for Taichi (default: all cores)")
+    bench.add_argument("--json", default=None, metavar="F.json", help="write the results as JSON")
+    bench.add_argument("--plot", default=None, metavar="F.png", help="write a log-log chart")
+    bench.add_argument("--compare", default=None, metavar="OLD.json", help="print the change against an earlier --json")
+    bench.add_argument("--quick", action="store_true", help="small defaults for a smoke test (explicit flags win)")
+    bench.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    bench.set_defaults(handler="crowd_ik.bench:run")
+
+    export = sub.add_parser("export", help="export a posed world (.glb) or a character's motion (.bvh)")
+    export.add_argument("scene", nargs="?", default=None, help="scene TOML (default: the built-in arena)")
+    export.add_argument("--frame", type=int, default=0, help="frame to export as .glb (default 0)")
+    export.add_argument("-o", "--output", default=None, help="OUT.glb")
+    export.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write one character's motion as BVH")
+    export.add_argument("--character", type=int, default=0, help="character index for --bvh (default 0)")
+    export.add_argument("--frames", type=int, default=None, help="frames of motion for --bvh")
+    export.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    _add_common_runtime(export)
+    export.set_defaults(handler="crowd_ik.export:run")
+
+    scenes = sub.add_parser("scenes", help="list the shipped scenes, or check one and print its effective values")
+    scenes.add_argument("file", nargs="?", default=None, help="scene TOML to check")
+    scenes.set_defaults(handler="crowd_ik.scene:run_cli")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    module, func = args.handler.split(":")
+    try:
+        handler = getattr(importlib.import_module(module), func)
+        return int(handler(args) or EXIT_OK)
+    except KeyboardInterrupt:
+        print("crowd-ik: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except FileExistsError as exc:
+        print(f"crowd-ik: {exc} (use --force to overwrite)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        print(f"crowd-ik: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RuntimeError as exc:
+        print(f"crowd-ik: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

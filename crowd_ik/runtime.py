@@ -1,0 +1,106 @@
+"""The one place that initialises Taichi.
+
+Every entry point calls :func:`init` lazily with its defaults; a user may call it first to pick the
+backend, thread count, precision or cache folder. It is idempotent for the same arch, and refuses
+to switch arch once Taichi is running (kernels already compiled for one backend cannot move).
+"""
+
+from __future__ import annotations
+
+import os
+
+_STATE: dict = {}
+
+ARCHES = ("auto", "cpu", "cuda")
+
+
+def _cuda_available(ti) -> bool:
+    """True when Taichi's CUDA backend can start on this machine (no display probe)."""
+    try:
+        from taichi._lib import core as _ti_core
+
+        return bool(_ti_core.with_cuda()) and _probe_cuda_device()
+    except Exception:  # noqa: BLE001 - any failure here means no usable CUDA
+        return False
+
+
+def _probe_cuda_device() -> bool:
+    import ctypes
+
+    for name in ("libcuda.so.1", "libcuda.so"):
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            continue
+        if lib.cuInit(0) != 0:
+            return False
+        count = ctypes.c_int(0)
+        return lib.cuDeviceGetCount(ctypes.byref(count)) == 0 and count.value > 0
+    return False
+
+
+def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir: str | None = None) -> str:
+    """Initialise Taichi once and return the resolved arch ("cpu" or "cuda").
+
+    arch: "auto" (CUDA if present, else CPU) | "cpu" | "cuda". "cuda" without a GPU raises
+    RuntimeError (never a silent CPU fallback). A second call with the same (or "auto") arch is a
+    no-op; another arch raises RuntimeError. threads: CPU worker threads (None = all cores).
+    fp: 32 or 64 (default float precision). cache_dir: Taichi's offline kernel cache folder.
+    """
+    if arch not in ARCHES:
+        raise ValueError(f"arch: expected one of {', '.join(ARCHES)} (got {arch!r})")
+    if fp not in (32, 64):
+        raise ValueError(f"fp: expected 32 or 64 (got {fp!r})")
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads: expected a positive integer (got {threads!r})")
+    if _STATE:
+        resolved = _STATE["arch"]
+        if arch not in ("auto", resolved):
+            raise RuntimeError(f"crowd_ik is already running on {resolved}; cannot switch to {arch} in this process")
+        if fp != _STATE["fp"]:
+            raise RuntimeError(f"crowd_ik is already running with fp={_STATE['fp']}; cannot switch to fp={fp}")
+        return resolved
+
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+    import taichi as ti
+
+    if arch == "cuda" and not _cuda_available(ti):
+        raise RuntimeError("arch 'cuda' requested but no CUDA GPU is available to Taichi on this machine")
+    use_cuda = arch == "cuda" or (arch == "auto" and _cuda_available(ti))
+    kwargs = dict(
+        arch=ti.cuda if use_cuda else ti.cpu,
+        default_fp=ti.f64 if fp == 64 else ti.f32,
+        offline_cache=True,
+        log_level=ti.WARN,
+    )
+    if cache_dir is not None:
+        kwargs["offline_cache_file_path"] = str(cache_dir)
+    if threads is not None:
+        kwargs["cpu_max_num_threads"] = threads
+    # Taichi's banner goes to stdout; machine-readable output is written to files instead.
+    ti.init(**kwargs)
+    resolved = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
+    if arch == "cuda" and resolved != "cuda":
+        raise RuntimeError("arch 'cuda' requested but Taichi could not start its CUDA backend")
+    _STATE.update(arch=resolved, fp=fp, threads=threads)
+    return resolved
+
+
+def ensure_init() -> str:
+    """Initialise with the defaults unless already initialised; return the arch."""
+    return _STATE["arch"] if _STATE else init()
+
+
+def current() -> dict:
+    """The settings Taichi was started with ({} before init)."""
+    return dict(_STATE)
+
+
+def float_dtype():
+    """NumPy dtype matching the kernels' float precision."""
+    import numpy as np
+
+    return np.float64 if _STATE.get("fp", 32) == 64 else np.float32
+
+
+__all__ = ["init", "ensure_init", "current", "float_dtype", "ARCHES"]
