@@ -1,0 +1,326 @@
+"""Crowd: N characters of one rig in Taichi ndarrays, posed by batched FK and solved by batched IK.
+
+All state is allocated once in the constructor. Kernels work relative to each character's root, so
+a batch gives the same result as the same characters solved one at a time, wherever they stand.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from crowd_ik import runtime
+from crowd_ik.rig import Rig
+
+METHODS = ("fabrik", "dls", "ccd")
+# Bytes of Taichi state per joint and per DOF of one character (positions, rotations, scratch).
+_BYTES_PER_JOINT = 4 * (3 + 4 + 4 + 3 + 3 + 1)
+_BYTES_PER_DOF = 4 * 4
+
+
+class Status(enum.IntEnum):
+    """Outcome of a solve per character, in order of precedence."""
+
+    CONVERGED = 0
+    UNREACHABLE = 1
+    STALLED = 2
+    MAX_ITERATIONS = 3
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """Per-character result of :meth:`Crowd.solve`."""
+
+    error: np.ndarray  # (N,) float32, metres: max over effectors of |effector - target|
+    iterations: np.ndarray  # (N,) int32: updates applied
+    status: np.ndarray  # (N,) int8 of Status
+    method: str = "fabrik"
+
+    @property
+    def converged(self) -> np.ndarray:
+        return self.status == Status.CONVERGED
+
+    def summary(self) -> dict:
+        counts = {s.name.lower(): int(np.count_nonzero(self.status == s)) for s in Status}
+        return dict(method=self.method, n=int(self.error.size), mean_error=float(self.error.mean()),
+                    max_error=float(self.error.max()), mean_iterations=float(self.iterations.mean()), **counts)
+
+
+def _as_array(value, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
+    """Broadcast ``value`` to ``shape`` as a C-contiguous array; refuse NaN/inf and bad shapes."""
+    arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise ValueError(f"{name}: expected numbers (got dtype {arr.dtype})")
+    try:
+        arr = np.broadcast_to(arr, shape)
+    except ValueError:
+        raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
+    arr = np.ascontiguousarray(arr, dtype=dtype)
+    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+        bad = arr[~np.isfinite(arr)].flat[0]
+        raise ValueError(f"{name}: must be finite (got {bad})")
+    return arr
+
+
+def _positive_int(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name}: expected a positive integer (got {value!r})")
+    return int(value)
+
+
+def _non_negative(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise ValueError(f"{name}: expected a number (got {value!r})")
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{name}: expected a finite number >= 0 (got {value!r})")
+    return float(value)
+
+
+def grid_positions(n: int, spacing: float, dim: int) -> np.ndarray:
+    """(n, dim) roots on a centred square grid: the x-z plane in 3D (y = 0), the x-y plane in 2D."""
+    cols = int(math.ceil(math.sqrt(n)))
+    rows = int(math.ceil(n / cols))
+    idx = np.arange(n)
+    u = (idx % cols - (cols - 1) / 2.0) * spacing
+    v = (idx // cols - (rows - 1) / 2.0) * spacing
+    out = np.zeros((n, dim), np.float32)
+    out[:, 0] = u
+    out[:, 2 if dim == 3 else 1] = v
+    return out
+
+
+class Crowd:
+    """N characters of one rig: roots, joint rotations, world transforms, and batched solvers."""
+
+    def __init__(self, rig: Rig, n: int = 1, seed: int = 0, spacing: float = 1.0):
+        if not isinstance(rig, Rig):
+            raise ValueError(f"rig: expected a crowd_ik.Rig (got {type(rig).__name__})")
+        self.n = _positive_int(n, "n")
+        if not (isinstance(spacing, (int, float)) and math.isfinite(spacing) and spacing >= 0):
+            raise ValueError(f"spacing: expected a finite number >= 0 (got {spacing!r})")
+        need = self.bytes_per_character(rig) * self.n
+        if need > 16 * 2**30:
+            raise ValueError(f"n: {self.n} characters of {rig.name} need about {need / 2**30:.1f} GiB (limit 16 GiB)")
+        self.rig, self.seed, self.dim = rig, int(seed), rig.dim
+        runtime.ensure_init()
+        import taichi as ti
+
+        self._ti = ti
+        J, D, E, N = rig.n_joints, rig.n_dof, rig.n_effectors, self.n
+        self.rig_arrays = {}
+        for key, value in rig.arrays.items():
+            dtype = ti.i32 if value.dtype == np.int32 else ti.f32
+            shape = value.shape
+            if key in ("offset", "eff_axis"):
+                arr = ti.ndarray(ti.math.vec3, shape=shape[:1])
+            elif key == "axes":
+                arr = ti.ndarray(ti.math.vec3, shape=shape[:2])
+            else:
+                arr = ti.ndarray(dtype, shape=shape)
+            arr.from_numpy(value)
+            self.rig_arrays[key] = arr
+        vec3, vec4 = ti.math.vec3, ti.math.vec4
+        self.root_pos = ti.ndarray(vec3, shape=(N,))
+        self.root_yaw = ti.ndarray(ti.f32, shape=(N,))
+        self.local_rot = ti.ndarray(vec4, shape=(N, J))
+        self.world_pos = ti.ndarray(vec3, shape=(N, J))
+        self.world_rot = ti.ndarray(vec4, shape=(N, J))
+        self._angles = ti.ndarray(ti.f32, shape=(N, max(D, 1)))
+        # Solver inputs and outputs, reused by every solve.
+        self._targets = ti.ndarray(vec3, shape=(N, E))
+        self._orient = ti.ndarray(vec3, shape=(N, E))
+        self._weights = ti.ndarray(ti.f32, shape=(N, E))
+        self._error = ti.ndarray(ti.f32, shape=(N,))
+        self._iters = ti.ndarray(ti.i32, shape=(N,))
+        self._stalled = ti.ndarray(ti.i32, shape=(N,))
+        self._scratch: dict[str, object] = {}
+        self.set_roots(grid_positions(N, float(spacing), self.dim))
+        self.set_angles(np.zeros(D, np.float32))
+
+    # ---------------------------------------------------------------- sizes
+    @staticmethod
+    def bytes_per_character(rig: Rig) -> int:
+        """Approximate bytes of Taichi state one character of ``rig`` needs (solver scratch included)."""
+        E = rig.n_effectors
+        return _BYTES_PER_JOINT * rig.n_joints + _BYTES_PER_DOF * rig.n_dof + 4 * (3 + 3 + 1) * E + 4 * 4
+
+    def scratch(self, name: str, dtype, shape: tuple):
+        """A named solver scratch ndarray, allocated on first use and kept (solvers reuse it each call)."""
+        arr = self._scratch.get(name)
+        if arr is None or tuple(arr.shape) != tuple(shape):
+            arr = self._ti.ndarray(dtype, shape=shape)
+            self._scratch[name] = arr
+        return arr
+
+    # ---------------------------------------------------------------- state in
+    def set_roots(self, positions, yaw=None) -> None:
+        """Place the characters: positions (N, dim) world metres; yaw (N,) radians about +y (3D only)."""
+        pos = _as_array(positions, "positions", (self.n, self.dim))
+        full = np.zeros((self.n, 3), np.float32)
+        full[:, : self.dim] = pos
+        self.root_pos.from_numpy(full)
+        if yaw is not None and self.dim == 2:
+            raise ValueError("yaw: planar (dim=2) characters have no yaw")
+        yaw_arr = np.zeros(self.n, np.float32) if yaw is None else _as_array(yaw, "yaw", (self.n,))
+        self.root_yaw.from_numpy(yaw_arr)
+        self._fk()
+
+    def set_angles(self, a) -> None:
+        """Set every joint angle: a (N, DOF) or (DOF,) radians; zeros = the rest pose."""
+        D = self.rig.n_dof
+        arr = _as_array(a, "angles", (self.n, D))
+        from crowd_ik.kernels import fk
+
+        if D == 0:
+            arr = np.zeros((self.n, 1), np.float32)
+        self._angles.from_numpy(arr)
+        ra = self.rig_arrays
+        fk.angles_to_rotations(ra["kind"], ra["axes"], ra["dof_start"], self._angles, self.local_rot)
+        self._fk()
+
+    def set_rotations(self, q) -> None:
+        """Set local joint rotations directly: q (N, J, 4) unit quaternions (x, y, z, w)."""
+        arr = _as_array(q, "rotations", (self.n, self.rig.n_joints, 4))
+        norms = np.linalg.norm(arr, axis=-1, keepdims=True)
+        if np.any(norms < 1e-6):
+            raise ValueError("rotations: quaternions must be non-zero")
+        self.local_rot.from_numpy((arr / norms).astype(np.float32))
+        self._fk()
+
+    def _fk(self) -> None:
+        from crowd_ik.kernels import fk
+
+        ra = self.rig_arrays
+        fk.forward_kinematics(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
+                              self.world_pos, self.world_rot)
+
+    # ---------------------------------------------------------------- state out
+    def angles(self) -> np.ndarray:
+        """(N, DOF) float32 radians (ball joints: intrinsic XYZ Euler)."""
+        from crowd_ik.kernels import fk
+
+        ra = self.rig_arrays
+        fk.rotations_to_angles(ra["kind"], ra["axes"], ra["dof_start"], self.local_rot, self._angles)
+        return self._angles.to_numpy()[:, : self.rig.n_dof].copy()
+
+    def rotations(self) -> np.ndarray:
+        """(N, J, 4) float32 local joint rotations (x, y, z, w)."""
+        return self.local_rot.to_numpy()
+
+    def world_rotations(self) -> np.ndarray:
+        """(N, J, 4) float32 world rotations of the joints' frames."""
+        return self.world_rot.to_numpy()
+
+    def roots(self) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (N, dim), yaw (N,))."""
+        return self.root_pos.to_numpy()[:, : self.dim], self.root_yaw.to_numpy()
+
+    def joint_positions(self) -> np.ndarray:
+        """(N, J, dim) float32 world positions of every joint."""
+        return self.world_pos.to_numpy()[..., : self.dim]
+
+    def effector_positions(self) -> np.ndarray:
+        """(N, E, dim) float32 world positions of the effectors."""
+        return self.joint_positions()[:, self.rig.arrays["eff_joint"]]
+
+    def jacobian(self, ball_mode: str = "euler") -> np.ndarray:
+        """(N, 6E, DOF) analytic Jacobian at the current pose: per effector 3 position then 3 orientation rows.
+
+        ball_mode "euler": columns are d/d(Euler XYZ angles) of ball joints; "quaternion": d/d(rotation
+        about the world x, y, z axes), the update a quaternion solver applies.
+        """
+        if ball_mode not in ("euler", "quaternion"):
+            raise ValueError(f"ball_mode: expected 'euler' or 'quaternion' (got {ball_mode!r})")
+        from crowd_ik.kernels import jacobian
+
+        ra = self.rig_arrays
+        out = self.scratch("jacobian", self._ti.f32, (self.n, 6 * self.rig.n_effectors, max(self.rig.n_dof, 1)))
+        jacobian.compute_jacobian(ra["parent"], ra["kind"], ra["axes"], ra["dof_start"], ra["eff_joint"],
+                                  self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
+                                  0 if ball_mode == "euler" else 1, out)
+        return out.to_numpy()[:, :, : self.rig.n_dof]
+
+    # ---------------------------------------------------------------- solve
+    def solve(self, targets, method: str = "fabrik", max_iterations: int = 20, tolerance: float = 1e-3,
+              weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
+              damping=None, joint_weights=None) -> SolveReport:
+        """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.
+
+        weights (E,) or (N, E) >= 0; orientations (N, E, 3) world directions for the effectors' local
+        axes (or None); method "fabrik" | "dls" | "ccd". rest_weight, velocity_weight, damping and
+        joint_weights (DOF,) shape the DLS objective. The result stays in the crowd.
+        """
+        if method not in METHODS:
+            raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
+        max_iterations = _positive_int(max_iterations, "max_iterations")
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) \
+                or not (math.isfinite(tolerance) and tolerance > 0):
+            raise ValueError(f"tolerance: expected a positive number (got {tolerance!r})")
+        N, E, dim = self.n, self.rig.n_effectors, self.dim
+        if np.ndim(targets) == 2 and np.shape(targets) == (E, dim) and N == 1:
+            targets = np.asarray(targets)[None]
+        tgt = _as_array(targets, "targets", (N, E, dim))
+        if np.shape(targets) != (N, E, dim):
+            raise ValueError(f"targets: expected shape {(N, E, dim)} (got {np.shape(targets)})")
+        w = np.ones((N, E), np.float32) if weights is None else _as_array(weights, "weights", (N, E))
+        if np.any(w < 0):
+            raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
+        if not np.any(w > 0):
+            raise ValueError("weights: at least one effector needs a positive weight")
+        if orientations is not None:
+            orient = _as_array(orientations, "orientations", (N, E, 3))
+            norms = np.linalg.norm(orient, axis=-1)
+            has = norms > 0
+            orient = np.where(has[..., None], orient / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
+        else:
+            orient = np.zeros((N, E, 3), np.float32)
+        params = dict(
+            rest_weight=_non_negative(rest_weight, "rest_weight"),
+            velocity_weight=_non_negative(velocity_weight, "velocity_weight"),
+            damping=None if damping is None else _non_negative(damping, "damping"),
+            joint_weights=None if joint_weights is None
+            else _as_array(joint_weights, "joint_weights", (self.rig.n_dof,)),
+        )
+        if params["joint_weights"] is not None and np.any(params["joint_weights"] < 0):
+            raise ValueError(f"joint_weights: must be >= 0 (got {float(params['joint_weights'].min())})")
+        full = np.zeros((N, E, 3), np.float32)
+        full[..., :dim] = tgt
+        self._targets.from_numpy(full)
+        self._weights.from_numpy(w)
+        self._orient.from_numpy(orient)
+        launch = getattr(self, f"_solve_{method}")
+        launch(max_iterations, float(tolerance), params)
+        return self._report(full, w, float(tolerance), method)
+
+    def _report(self, targets: np.ndarray, w: np.ndarray, tolerance: float, method: str) -> SolveReport:
+        error = self._error.to_numpy()
+        iters = self._iters.to_numpy()
+        stalled = self._stalled.to_numpy().astype(bool)
+        base = self.world_pos.to_numpy()[:, 0, :]
+        far = np.linalg.norm(targets - base[:, None, :], axis=-1) > self.rig.reach[None, :] * (1 + 1e-6) + 1e-7
+        unreachable = np.any(far & (w > 0), axis=1)
+        status = np.full(self.n, Status.MAX_ITERATIONS, np.int8)
+        status[stalled] = Status.STALLED
+        status[unreachable] = Status.UNREACHABLE
+        status[error <= tolerance] = Status.CONVERGED
+        return SolveReport(error=error, iterations=iters, status=status, method=method)
+
+    def _solve_fabrik(self, max_iterations: int, tolerance: float, params: dict) -> None:
+        from crowd_ik.kernels import fabrik
+
+        ra, ti = self.rig_arrays, self._ti
+        work = self.scratch("fabrik_pos", ti.math.vec3, (self.n, self.rig.n_joints))
+        acc_w = self.scratch("fabrik_w", ti.f32, (self.n, self.rig.n_joints))
+        fabrik.fabrik_solve(
+            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
+            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
+            self._targets, self._weights, self._orient, work, acc_w,
+            max_iterations, tolerance, self._error, self._iters, self._stalled,
+        )
+
+
+__all__ = ["Crowd", "SolveReport", "Status", "METHODS", "grid_positions"]

@@ -1,0 +1,257 @@
+"""FABRIK with joint constraints and several effectors (Aristidou & Lasenby 2011), one character per thread.
+
+Each iteration: (1) backward pass from the targets to the root; a sub-base (a joint several effector
+chains meet at) goes to the weighted centroid of what its chains propose (paper, section 4);
+(2) forward pass from the fixed root with exact bone lengths; (3) in topological order, recover each
+joint's rotation from the proposed positions (the minimal swing, so a ball joint keeps its twist;
+the best angle about the axis for a hinge), clamp it to the joint's limits, and run FK. The pose is
+therefore always FK(rotations): bone lengths are exact and limits hold after every iteration.
+"""
+
+import taichi as ti
+
+from crowd_ik.kernels.quat import (
+    constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, yaw_quat, vec3, vec4,
+)
+
+ndarray = ti.types.ndarray
+
+
+@ti.func
+def effector_error(i, eff_joint: ti.template(), targets: ti.template(), weights: ti.template(),
+                   world_pos: ti.template()):
+    """Max over effectors with positive weight of |effector - target|."""
+    err = 0.0
+    for e in range(eff_joint.shape[0]):
+        if weights[i, e] > 0.0:
+            err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
+    return err
+
+
+@ti.func
+def backward_pass(i, parent: ti.template(), offset: ti.template(), eff_joint: ti.template(), targets: ti.template(),
+                  weights: ti.template(), world_pos: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints."""
+    J = parent.shape[0]
+    for j in range(J):
+        work[i, j] = vec3(0.0)
+        acc_w[i, j] = 0.0
+    for e in range(eff_joint.shape[0]):
+        w = weights[i, e]
+        if w > 0.0:
+            k = eff_joint[e]
+            work[i, k] += w * targets[i, e]
+            acc_w[i, k] += w
+    for jj in range(J - 1):
+        j = J - 1 - jj
+        w = acc_w[i, j]
+        if w > 0.0:
+            pj = work[i, j] / w
+            work[i, j] = pj
+            p = parent[j]
+            length = offset[j].norm()
+            toward = safe_normalize(world_pos[i, p] - pj, -offset[j] / length)
+            work[i, p] += w * (pj + length * toward)
+            acc_w[i, p] += w
+    if acc_w[i, 0] > 0.0:
+        work[i, 0] = work[i, 0] / acc_w[i, 0]
+
+
+@ti.func
+def forward_pass(i, parent: ti.template(), offset: ti.template(), world_pos: ti.template(), work: ti.template(),
+                 acc_w: ti.template()):
+    """Root (fixed where it stands) -> leaves, putting each active joint at its bone length from its parent."""
+    work[i, 0] = world_pos[i, 0]
+    for j in range(1, parent.shape[0]):
+        if acc_w[i, j] > 0.0:
+            p = parent[j]
+            length = offset[j].norm()
+            d = safe_normalize(work[i, j] - work[i, p], offset[j] / length)
+            work[i, j] = work[i, p] + length * d
+
+
+@ti.func
+def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.template(), offset: ti.template(),
+                          lo: ti.template(), hi: ti.template(), dof_start: ti.template(), child_start: ti.template(),
+                          child_list: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Twist a ball joint about its bone so that its hinge child can bend in the plane FABRIK proposes.
+
+    A hinge bends only about its axis, so the ball joint above it (hip above knee, shoulder above
+    elbow) must turn that axis onto the normal of the plane through the proposed joint, hinge and
+    hinge-child positions; the sign follows the hinge's range (a knee bends one way only).
+    """
+    out = q
+    c = -1
+    for cc in range(child_start[j], child_start[j + 1]):
+        if acc_w[i, child_list[cc]] > 0.0:
+            c = child_list[cc]
+    if c >= 0 and kind[c] == 1:
+        g = -1
+        for cc in range(child_start[c], child_start[c + 1]):
+            if acc_w[i, child_list[cc]] > 0.0:
+                g = child_list[cc]
+        if g >= 0:
+            b = qrot(out, offset[c]).normalized()
+            u = qrot(inv_base, work[i, c] - pos_j)
+            v = qrot(inv_base, work[i, g] - work[i, c])
+            n = ti.math.cross(u, v)
+            if n.norm() > 1e-4 * u.norm() * v.norm():
+                n = n.normalized()
+                s = dof_start[c]
+                axis = qrot(out, axes[c, 0])
+                sign = 1.0
+                if lo[s] >= 0.0:
+                    sign = 1.0
+                elif hi[s] <= 0.0:
+                    sign = -1.0
+                elif axis.dot(n) < 0.0:
+                    sign = -1.0
+                n = sign * n
+                a_p = axis - axis.dot(b) * b
+                n_p = n - n.dot(b) * b
+                if a_p.norm() > 1e-6 and n_p.norm() > 1e-6:
+                    ang = ti.atan2(b.dot(ti.math.cross(a_p, n_p)), a_p.dot(n_p))
+                    h = 0.5 * ang
+                    sh = ti.sin(h)
+                    out = qnormalize(qmul(vec4(b.x * sh, b.y * sh, b.z * sh, ti.cos(h)), out))
+    return out
+
+
+@ti.func
+def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
+                          lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                          child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
+                          eff_axis: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
+                          local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
+                          weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Rotations from the proposed positions, clamped to the limits, then FK, in one topological sweep."""
+    q_root = yaw_quat(root_yaw[i])
+    for j in range(parent.shape[0]):
+        p = parent[j]
+        base_pos = root_pos[i]
+        base_rot = q_root
+        if p >= 0:
+            base_pos = world_pos[i, p]
+            base_rot = world_rot[i, p]
+        pos_j = base_pos + qrot(base_rot, offset[j])
+        world_pos[i, j] = pos_j
+        q = local_rot[i, j]
+        k = kind[j]
+        if k > 0 and acc_w[i, j] > 0.0:
+            inv_base = qconj(base_rot)
+            c0 = child_start[j]
+            c1 = child_start[j + 1]
+            first_bone = vec3(0.0)
+            if k == 1:
+                # best hinge angle for all active children: atan2(sum w a.(u x v), sum w u.v), u, v projected
+                ax = axes[j, 0]
+                s_cross = 0.0
+                s_dot = 0.0
+                for cc in range(c0, c1):
+                    c = child_list[cc]
+                    wc = acc_w[i, c]
+                    if wc > 0.0:
+                        u = qrot(q, offset[c])
+                        u = u - u.dot(ax) * ax
+                        v = qrot(inv_base, work[i, c] - pos_j)
+                        v = v - v.dot(ax) * ax
+                        s_cross += wc * ax.dot(ti.math.cross(u, v))
+                        s_dot += wc * u.dot(v)
+                if s_cross != 0.0 or s_dot != 0.0:
+                    h = 0.5 * ti.atan2(s_cross, s_dot)
+                    q = qnormalize(qmul(vec4(ax.x * ti.sin(h), ax.y * ti.sin(h), ax.z * ti.sin(h), ti.cos(h)), q))
+            else:
+                n_active = 0
+                for cc in range(c0, c1):
+                    if acc_w[i, child_list[cc]] > 0.0:
+                        n_active += 1
+                        if n_active == 1:
+                            first_bone = offset[child_list[cc]].normalized()
+                rounds = 1 if n_active <= 1 else 4
+                for _ in range(rounds):
+                    if n_active > 0:
+                        acc = vec4(0.0)
+                        for cc in range(c0, c1):
+                            c = child_list[cc]
+                            wc = acc_w[i, c]
+                            if wc > 0.0:
+                                cur = qrot(q, offset[c]).normalized()
+                                want = safe_normalize(qrot(inv_base, work[i, c] - pos_j), cur)
+                                sw = swing(cur, want)
+                                if sw.w < 0.0:
+                                    sw = -sw
+                                acc += wc * sw
+                        q = qnormalize(qmul(qnormalize(acc), q))
+                if n_active == 1 and k == 3:
+                    q = twist_for_hinge_child(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, dof_start,
+                                              child_start, child_list, work, acc_w)
+            # an orientation target on this joint's effector overrides the swing of its local axis
+            for e in range(eff_joint.shape[0]):
+                if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
+                    cur = qrot(q, eff_axis[e])
+                    want = qrot(inv_base, orient[i, e])
+                    q = qnormalize(qmul(swing(cur, want), q))
+            q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
+            local_rot[i, j] = q
+        world_rot[i, j] = qmul(base_rot, q)
+
+
+@ti.kernel
+def fabrik_solve(
+    parent: ndarray(dtype=ti.i32, ndim=1),
+    offset: ndarray(dtype=vec3, ndim=1),
+    kind: ndarray(dtype=ti.i32, ndim=1),
+    axes: ndarray(dtype=vec3, ndim=2),
+    lo: ndarray(ndim=1),
+    hi: ndarray(ndim=1),
+    cone: ndarray(ndim=1),
+    dof_start: ndarray(dtype=ti.i32, ndim=1),
+    child_start: ndarray(dtype=ti.i32, ndim=1),
+    child_list: ndarray(dtype=ti.i32, ndim=1),
+    eff_joint: ndarray(dtype=ti.i32, ndim=1),
+    eff_axis: ndarray(dtype=vec3, ndim=1),
+    root_pos: ndarray(dtype=vec3, ndim=1),
+    root_yaw: ndarray(ndim=1),
+    local_rot: ndarray(dtype=vec4, ndim=2),
+    world_pos: ndarray(dtype=vec3, ndim=2),
+    world_rot: ndarray(dtype=vec4, ndim=2),
+    targets: ndarray(dtype=vec3, ndim=2),
+    weights: ndarray(ndim=2),
+    orient: ndarray(dtype=vec3, ndim=2),
+    work: ndarray(dtype=vec3, ndim=2),
+    acc_w: ndarray(ndim=2),
+    max_iterations: ti.i32,
+    tolerance: ti.f32,
+    error: ndarray(ndim=1),
+    iterations: ndarray(dtype=ti.i32, ndim=1),
+    stalled: ndarray(dtype=ti.i32, ndim=1),
+):
+    """Solve every character (N = root_pos.shape[0]) in place: local_rot, world_pos and world_rot are updated.
+
+    targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit directions or zero.
+    Outputs: error (N,) final max effector distance, iterations (N,), stalled (N,) 1 if it stopped improving.
+    """
+    for i in range(root_pos.shape[0]):
+        err = effector_error(i, eff_joint, targets, weights, world_pos)
+        it = 0
+        flat = 0
+        stop = 0
+        while it < max_iterations and err > tolerance and stop == 0:
+            backward_pass(i, parent, offset, eff_joint, targets, weights, world_pos, work, acc_w)
+            forward_pass(i, parent, offset, world_pos, work, acc_w)
+            recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
+                                  eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos, world_rot, weights,
+                                  orient, work, acc_w)
+            new_err = effector_error(i, eff_joint, targets, weights, world_pos)
+            it += 1
+            # stalled: four updates in a row that improved the error by less than 0.01 %
+            if new_err > err * (1.0 - 1e-4):
+                flat += 1
+            else:
+                flat = 0
+            err = new_err
+            if flat >= 4:
+                stop = 1
+        error[i] = err
+        iterations[i] = it
+        stalled[i] = stop

@@ -1,0 +1,183 @@
+"""Quaternion and joint-rotation helpers (@ti.func) shared by the kernels.
+
+Quaternions are vec4 (x, y, z, w), scalar last (as scipy's Rotation), unit length, acting on column
+vectors: v' = q v q*. A ball joint's Euler angles are intrinsic XYZ: R = Rx(a) Ry(b) Rz(c).
+Joint kind codes equal their DOF counts: 0 fixed, 1 hinge, 2 universal, 3 ball.
+"""
+
+import taichi as ti
+
+vec3 = ti.math.vec3
+vec4 = ti.math.vec4
+PI = 3.141592653589793
+
+
+@ti.func
+def qmul(a, b):
+    """Hamilton product a * b (apply b first, then a)."""
+    av, bv = a.xyz, b.xyz
+    v = a.w * bv + b.w * av + ti.math.cross(av, bv)
+    return vec4(v.x, v.y, v.z, a.w * b.w - ti.math.dot(av, bv))
+
+
+@ti.func
+def qconj(q):
+    return vec4(-q.x, -q.y, -q.z, q.w)
+
+
+@ti.func
+def qrot(q, v):
+    """Rotate v by unit quaternion q (t = 2 q.xyz x v; v + w t + q.xyz x t)."""
+    u = q.xyz
+    t = 2.0 * ti.math.cross(u, v)
+    return v + q.w * t + ti.math.cross(u, t)
+
+
+@ti.func
+def qnormalize(q):
+    n = ti.sqrt(q.dot(q))
+    out = vec4(0.0, 0.0, 0.0, 1.0)
+    if n > 1e-12:
+        out = q / n
+    return out
+
+
+@ti.func
+def axis_angle(axis, angle):
+    h = 0.5 * angle
+    s = ti.sin(h)
+    return vec4(axis.x * s, axis.y * s, axis.z * s, ti.cos(h))
+
+
+@ti.func
+def yaw_quat(yaw):
+    return axis_angle(vec3(0.0, 1.0, 0.0), yaw)
+
+
+@ti.func
+def euler_xyz_to_quat(a, b, c):
+    qx = axis_angle(vec3(1.0, 0.0, 0.0), a)
+    qy = axis_angle(vec3(0.0, 1.0, 0.0), b)
+    qz = axis_angle(vec3(0.0, 0.0, 1.0), c)
+    return qmul(qmul(qx, qy), qz)
+
+
+@ti.func
+def quat_to_euler_xyz(q):
+    """Intrinsic XYZ angles of R = Rx(a) Ry(b) Rz(c): b = asin(R02), a = atan2(-R12, R22), c = atan2(-R01, R00)."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    r02 = 2.0 * (x * z + y * w)
+    r12 = 2.0 * (y * z - x * w)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    r01 = 2.0 * (x * y - z * w)
+    r00 = 1.0 - 2.0 * (y * y + z * z)
+    b = ti.asin(ti.math.clamp(r02, -1.0, 1.0))
+    a = 0.0
+    c = 0.0
+    if ti.abs(r02) < 0.9999995:
+        a = ti.atan2(-r12, r22)
+        c = ti.atan2(-r01, r00)
+    else:  # gimbal lock: put the whole remaining rotation on a
+        r21 = 2.0 * (y * z + x * w)
+        r11 = 1.0 - 2.0 * (x * x + z * z)
+        a = ti.atan2(r21, r11)
+    return vec3(a, b, c)
+
+
+@ti.func
+def wrap_angle(t):
+    """Wrap to (-pi, pi]."""
+    return t - 2.0 * PI * ti.floor((t + PI) / (2.0 * PI))
+
+
+@ti.func
+def twist_angle(q, axis):
+    """Angle of the twist of q about a unit axis (swing-twist decomposition), in (-pi, pi]."""
+    return wrap_angle(2.0 * ti.atan2(q.xyz.dot(axis), q.w))
+
+
+@ti.func
+def joint_quat(kind, ax0, ax1, a0, a1, a2):
+    """Local rotation of a joint from its DOF values (unused values ignored)."""
+    q = vec4(0.0, 0.0, 0.0, 1.0)
+    if kind == 1:
+        q = axis_angle(ax0, a0)
+    elif kind == 2:
+        q = qmul(axis_angle(ax0, a0), axis_angle(ax1, a1))
+    elif kind == 3:
+        q = euler_xyz_to_quat(a0, a1, a2)
+    return q
+
+
+@ti.func
+def joint_angles(kind, ax0, ax1, q):
+    """DOF values of a joint's local rotation q (the projection onto its DOFs for hinge/universal)."""
+    out = vec3(0.0, 0.0, 0.0)
+    if kind == 1:
+        out.x = twist_angle(q, ax0)
+    elif kind == 2:
+        # R a1 = R(ax0, t0) a1, so t0 is the angle that turns a1 to R a1 about ax0; then the rest is about ax1.
+        v = qrot(q, ax1)
+        t0 = ti.atan2(ax0.dot(ti.math.cross(ax1, v)), ax1.dot(v))
+        rest = qmul(qconj(axis_angle(ax0, t0)), q)
+        out.x = t0
+        out.y = twist_angle(rest, ax1)
+    elif kind == 3:
+        out = quat_to_euler_xyz(q)
+    return out
+
+
+@ti.func
+def swing(u, v):
+    """The minimal rotation taking unit vector u to unit vector v (no twist about either)."""
+    d = u.dot(v)
+    q = vec4(0.0, 0.0, 0.0, 1.0)
+    if d < -0.999999:
+        axis = ti.math.cross(u, vec3(1.0, 0.0, 0.0))
+        if axis.norm_sqr() < 1e-8:
+            axis = ti.math.cross(u, vec3(0.0, 1.0, 0.0))
+        axis = axis.normalized()
+        q = vec4(axis.x, axis.y, axis.z, 0.0)
+    else:
+        c = ti.math.cross(u, v)
+        q = qnormalize(vec4(c.x, c.y, c.z, 1.0 + d))
+    return q
+
+
+@ti.func
+def safe_normalize(v, fallback):
+    n = v.norm()
+    out = fallback
+    if n > 1e-9:
+        out = v / n
+    return out
+
+
+@ti.func
+def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), s, cone, bone):
+    """Project q onto the joint's DOFs and clamp it to its limits (cone on the swing of `bone`, then boxes)."""
+    out = q
+    if kind == 1:
+        t = ti.math.clamp(twist_angle(q, ax0), lo[s], hi[s])
+        out = axis_angle(ax0, t)
+    elif kind == 2:
+        a = joint_angles(kind, ax0, ax1, q)
+        out = joint_quat(kind, ax0, ax1, ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
+                         0.0)
+    elif kind == 3:
+        if cone > 0.0 and bone.norm_sqr() > 0.0:
+            cur = qrot(out, bone)
+            ang = ti.acos(ti.math.clamp(cur.dot(bone), -1.0, 1.0))
+            if ang > cone:
+                # rotate the bone back toward rest along the great circle until it sits on the cone
+                axis = safe_normalize(ti.math.cross(cur, bone), vec3(0.0, 0.0, 1.0))
+                out = qmul(axis_angle(axis, ang - cone), out)
+        limited = False
+        for d in ti.static(range(3)):
+            if lo[s + d] > -1e29 or hi[s + d] < 1e29:
+                limited = True
+        if limited:
+            a = quat_to_euler_xyz(out)
+            out = euler_xyz_to_quat(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
+                                    ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))
+    return out
