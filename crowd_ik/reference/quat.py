@@ -1,0 +1,84 @@
+"""NumPy twins of kernels/quat.py: quaternions (x, y, z, w) and joint rotations, vectorised over leading axes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    av, aw = a[..., :3], a[..., 3:]
+    bv, bw = b[..., :3], b[..., 3:]
+    v = aw * bv + bw * av + np.cross(av, bv)
+    w = aw * bw - np.sum(av * bv, axis=-1, keepdims=True)
+    return np.concatenate([v, w], axis=-1)
+
+
+def qconj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([-1.0, -1.0, -1.0, 1.0], dtype=q.dtype)
+
+
+def qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    u, w = q[..., :3], q[..., 3:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    angle = np.asarray(angle)[..., None]
+    return np.concatenate([np.asarray(axis) * np.sin(0.5 * angle), np.cos(0.5 * angle) * np.ones_like(angle)], -1)
+
+
+def euler_xyz_to_quat(a: np.ndarray) -> np.ndarray:
+    """a (..., 3) intrinsic XYZ angles -> (..., 4)."""
+    ex, ey, ez = np.eye(3)
+    return qmul(qmul(axis_angle(ex, a[..., 0]), axis_angle(ey, a[..., 1])), axis_angle(ez, a[..., 2]))
+
+
+def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    r02 = 2 * (x * z + y * w)
+    r12 = 2 * (y * z - x * w)
+    r22 = 1 - 2 * (x * x + y * y)
+    r01 = 2 * (x * y - z * w)
+    r00 = 1 - 2 * (y * y + z * z)
+    r21 = 2 * (y * z + x * w)
+    r11 = 1 - 2 * (x * x + z * z)
+    b = np.arcsin(np.clip(r02, -1, 1))
+    lock = np.abs(r02) >= 0.9999995
+    a = np.where(lock, np.arctan2(r21, r11), np.arctan2(-r12, r22))
+    c = np.where(lock, 0.0, np.arctan2(-r01, r00))
+    return np.stack([a, b, c], axis=-1)
+
+
+def wrap_angle(t: np.ndarray) -> np.ndarray:
+    return t - 2 * np.pi * np.floor((t + np.pi) / (2 * np.pi))
+
+
+def twist_angle(q: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    return wrap_angle(2 * np.arctan2(np.sum(q[..., :3] * axis, axis=-1), q[..., 3]))
+
+
+def joint_quat(kind: int, axes: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Local rotation (..., 4) of a joint of `kind` (DOF count) from its angles a (..., kind)."""
+    shape = a.shape[:-1]
+    if kind == 0:
+        return np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]), shape + (4,)).copy()
+    if kind == 1:
+        return axis_angle(axes[0], a[..., 0])
+    if kind == 2:
+        return qmul(axis_angle(axes[0], a[..., 0]), axis_angle(axes[1], a[..., 1]))
+    return euler_xyz_to_quat(a)
+
+
+def joint_angles(kind: int, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Angles (..., kind) of a joint's local rotation q (..., 4)."""
+    if kind == 0:
+        return np.zeros(q.shape[:-1] + (0,))
+    if kind == 1:
+        return twist_angle(q, axes[0])[..., None]
+    if kind == 2:
+        v = qrot(q, np.broadcast_to(axes[1], q.shape[:-1] + (3,)))
+        t0 = np.arctan2(np.sum(axes[0] * np.cross(axes[1], v), -1), np.sum(axes[1] * v, -1))
+        rest = qmul(qconj(axis_angle(axes[0], t0)), q)
+        return np.stack([t0, twist_angle(rest, axes[1])], -1)
+    return quat_to_euler_xyz(q)
