@@ -82,3 +82,48 @@ def joint_angles(kind: int, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
         rest = qmul(qconj(axis_angle(axes[0], t0)), q)
         return np.stack([t0, twist_angle(rest, axes[1])], -1)
     return quat_to_euler_xyz(q)
+
+
+def qnormalize(q: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    ident = np.zeros_like(q)
+    ident[..., 3] = 1.0
+    return np.where(n > 1e-12, q / np.maximum(n, 1e-30), ident)
+
+
+def safe_normalize(v: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.where(n > 1e-9, v / np.maximum(n, 1e-30), fallback)
+
+
+def swing(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Minimal rotation (..., 4) taking unit u to unit v."""
+    d = np.sum(u * v, axis=-1, keepdims=True)
+    c = np.cross(u, v)
+    q = qnormalize(np.concatenate([c, 1.0 + d], -1))
+    axis = np.cross(u, np.array([1.0, 0.0, 0.0]))
+    alt = np.cross(u, np.array([0.0, 1.0, 0.0]))
+    axis = np.where(np.sum(axis * axis, -1, keepdims=True) < 1e-8, alt, axis)
+    axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-30)
+    flip = np.concatenate([axis, np.zeros_like(d)], -1)
+    return np.where(d < -0.999999, flip, q)
+
+
+def constrain_rotation(kind: int, axes: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                       cone: float, bone: np.ndarray) -> np.ndarray:
+    """Twin of quat.constrain_rotation for one joint over (N, 4) rotations; lo/hi are that joint's (kind,) limits."""
+    if kind == 0:
+        return q
+    if kind in (1, 2):
+        a = np.clip(joint_angles(kind, axes, q), lo, hi)
+        return joint_quat(kind, axes, a)
+    out = q
+    if cone > 0 and np.dot(bone, bone) > 0:
+        cur = qrot(out, np.broadcast_to(bone, out.shape[:-1] + (3,)))
+        ang = np.arccos(np.clip(np.sum(cur * bone, -1), -1, 1))
+        axis = safe_normalize(np.cross(cur, bone), np.array([0.0, 0.0, 1.0]))
+        back = qmul(axis_angle(axis, np.maximum(ang - cone, 0.0)), out)
+        out = np.where((ang > cone)[..., None], back, out)
+    if np.any(lo > -1e29) or np.any(hi < 1e29):
+        out = euler_xyz_to_quat(np.clip(quat_to_euler_xyz(out), lo, hi))
+    return out

@@ -1,0 +1,204 @@
+"""NumPy twin of kernels/fabrik.py, vectorised over characters: the tests' oracle and the benchmark baseline.
+
+The same three steps per iteration (backward pass with weighted sub-base centroids, forward pass from
+the fixed root, rotation recovery with limits and FK); characters that have converged or stalled are
+frozen by masks, as the kernel's per-character loop exits.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from crowd_ik.reference.quat import (
+    axis_angle, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing,
+)
+from crowd_ik.reference.fk import yaw_quat
+from crowd_ik.rig import Rig
+
+
+def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    d = np.linalg.norm(pos[:, rig.arrays["eff_joint"]] - targets, axis=-1)
+    return np.max(np.where(weights > 0, d, 0.0), axis=1)
+
+
+def _passes(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray):
+    N, J = pos.shape[:2]
+    offset = rig.arrays["offset"].astype(np.float64)
+    length = np.linalg.norm(offset, axis=1)
+    work = np.zeros((N, J, 3))
+    acc = np.zeros((N, J))
+    for e, eff in enumerate(rig.effectors):
+        w = weights[:, e]
+        work[:, eff.joint] += w[:, None] * targets[:, e]
+        acc[:, eff.joint] += w
+    for j in range(J - 1, 0, -1):
+        w = acc[:, j]
+        on = w > 0
+        pj = work[:, j] / np.where(on, w, 1.0)[:, None]
+        work[:, j] = np.where(on[:, None], pj, work[:, j])
+        p = rig.joints[j].parent
+        toward = safe_normalize(pos[:, p] - pj, -offset[j] / length[j])
+        work[:, p] += np.where(on[:, None], w[:, None] * (pj + length[j] * toward), 0.0)
+        acc[:, p] += np.where(on, w, 0.0)
+    work[:, 0] = pos[:, 0]
+    for j in range(1, J):
+        on = acc[:, j] > 0
+        p = rig.joints[j].parent
+        d = safe_normalize(work[:, j] - work[:, p], offset[j] / length[j])
+        work[:, j] = np.where(on[:, None], work[:, p] + length[j] * d, work[:, j])
+    return work, acc
+
+
+def _hinge_twist(rig, j, q, inv_base, pos_j, work, acc):
+    """Twin of fabrik.twist_for_hinge_child for ball joint j over all characters."""
+    arr = rig.arrays
+    kids = [c for c in rig.children[j]]
+    c = np.full(q.shape[0], -1)
+    for k in kids:
+        c = np.where(acc[:, k] > 0, k, c)
+    out = q.copy()
+    for k in kids:
+        if rig.joints[k].kind != "hinge":
+            continue
+        sel = c == k
+        g = np.full(q.shape[0], -1)
+        for gg in rig.children[k]:
+            g = np.where(acc[:, gg] > 0, gg, g)
+        sel &= g >= 0
+        if not np.any(sel):
+            continue
+        gi = np.maximum(g, 0)
+        rows = np.arange(q.shape[0])
+        b = qrot(q, np.broadcast_to(arr["offset"][k].astype(np.float64), q.shape[:-1] + (3,)))
+        b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+        u = qrot(inv_base, work[:, k] - pos_j)
+        v = qrot(inv_base, work[rows, gi] - work[:, k])
+        n = np.cross(u, v)
+        nn = np.linalg.norm(n, axis=-1)
+        sel &= nn > 1e-4 * np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1)
+        n = n / np.maximum(nn, 1e-30)[:, None]
+        axis = qrot(q, np.broadcast_to(np.array(rig.joints[k].axes[0]), q.shape[:-1] + (3,)))
+        lo, hi = rig.joints[k].lo[0], rig.joints[k].hi[0]
+        if lo >= 0:
+            sign = np.ones(q.shape[0])
+        elif hi <= 0:
+            sign = -np.ones(q.shape[0])
+        else:
+            sign = np.where(np.sum(axis * n, -1) < 0, -1.0, 1.0)
+        n = sign[:, None] * n
+        a_p = axis - np.sum(axis * b, -1, keepdims=True) * b
+        n_p = n - np.sum(n * b, -1, keepdims=True) * b
+        sel &= (np.linalg.norm(a_p, axis=-1) > 1e-6) & (np.linalg.norm(n_p, axis=-1) > 1e-6)
+        ang = np.arctan2(np.sum(b * np.cross(a_p, n_p), -1), np.sum(a_p * n_p, -1))
+        turned = qnormalize(qmul(axis_angle(b, ang), q))
+        out = np.where(sel[:, None], turned, out)
+    return out
+
+
+def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
+    arr = rig.arrays
+    offset = arr["offset"].astype(np.float64)
+    lo_all, hi_all = arr["lo"].astype(np.float64), arr["hi"].astype(np.float64)
+    N = rot.shape[0]
+    for j, joint in enumerate(rig.joints):
+        base_pos, base_rot = (root_pos, q_root) if joint.parent < 0 else (pos[:, joint.parent], wrot[:, joint.parent])
+        pos_j = base_pos + qrot(base_rot, np.broadcast_to(offset[j], (N, 3)))
+        pos[:, j] = pos_j
+        q = rot[:, j]
+        active = acc[:, j] > 0
+        if joint.dof > 0 and np.any(active):
+            inv_base = qconj(base_rot)
+            kids = rig.children[j]
+            first_bone = np.zeros(3)
+            if joint.kind == "hinge":
+                ax = np.array(joint.axes[0])
+                s_cross = np.zeros(N)
+                s_dot = np.zeros(N)
+                for c in kids:
+                    wc = acc[:, c]
+                    u = qrot(q, np.broadcast_to(offset[c], (N, 3)))
+                    u = u - (u @ ax)[:, None] * ax
+                    v = qrot(inv_base, work[:, c] - pos_j)
+                    v = v - (v @ ax)[:, None] * ax
+                    s_cross += np.where(wc > 0, wc * (np.cross(u, v) @ ax), 0.0)
+                    s_dot += np.where(wc > 0, wc * np.sum(u * v, -1), 0.0)
+                turn = (s_cross != 0) | (s_dot != 0)
+                new_q = qnormalize(qmul(axis_angle(ax, np.arctan2(s_cross, s_dot)), q))
+                q = np.where(turn[:, None], new_q, q)
+            else:
+                n_active = np.zeros(N, int)
+                for c in kids:
+                    n_active += acc[:, c] > 0
+                actives = [c for c in kids]
+                firsts = np.full(N, -1)
+                for c in reversed(actives):
+                    firsts = np.where(acc[:, c] > 0, c, firsts)
+                if len(kids) and np.all(firsts == firsts[0]) and firsts[0] >= 0:
+                    first_bone = offset[firsts[0]] / np.linalg.norm(offset[firsts[0]])
+                rounds = np.where(n_active <= 1, 1, 4)
+                for r in range(4):
+                    go = (n_active > 0) & (r < rounds)
+                    if not np.any(go):
+                        break
+                    total = np.zeros((N, 4))
+                    for c in kids:
+                        wc = acc[:, c]
+                        cur = qrot(q, np.broadcast_to(offset[c], (N, 3)))
+                        cur = cur / np.linalg.norm(cur, axis=-1, keepdims=True)
+                        want = safe_normalize(qrot(inv_base, work[:, c] - pos_j), cur)
+                        sw = swing(cur, want)
+                        sw = np.where(sw[:, 3:] < 0, -sw, sw)
+                        total += np.where((wc > 0)[:, None], wc[:, None] * sw, 0.0)
+                    q = np.where(go[:, None], qnormalize(qmul(qnormalize(total), q)), q)
+                if joint.kind == "ball":
+                    twisted = _hinge_twist(rig, j, q, inv_base, pos_j, work, acc)
+                    q = np.where((n_active == 1)[:, None], twisted, q)
+            for e, eff in enumerate(rig.effectors):
+                if eff.joint != j:
+                    continue
+                has = (weights[:, e] > 0) & (np.sum(orient[:, e] ** 2, -1) > 0)
+                cur = qrot(q, np.broadcast_to(arr["eff_axis"][e].astype(np.float64), (N, 3)))
+                want = qrot(inv_base, orient[:, e])
+                q = np.where(has[:, None], qnormalize(qmul(swing(cur, want), q)), q)
+            s = rig.dof_start[j]
+            q = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
+                                   lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
+            rot[:, j] = np.where(active[:, None], q, rot[:, j])
+        wrot[:, j] = qmul(base_rot, rot[:, j])
+
+
+def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
+                 tolerance=1e-3):
+    """Solve N characters from local rotations rot (N, J, 4); returns (rot, pos, error, iterations, stalled).
+
+    root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world; weights (N, E); orientations (N, E, 3) or None.
+    """
+    from crowd_ik.reference.fk import forward_kinematics
+
+    rot = np.array(rot, np.float64)
+    root_pos = np.asarray(root_pos, np.float64)
+    N, E = rot.shape[0], rig.n_effectors
+    targets = np.asarray(targets, np.float64)
+    weights = np.ones((N, E)) if weights is None else np.broadcast_to(np.asarray(weights, np.float64), (N, E))
+    orient = np.zeros((N, E, 3)) if orientations is None else np.asarray(orientations, np.float64)
+    q_root = yaw_quat(root_yaw)
+    pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
+    err = _error(rig, pos, targets, weights)
+    iters = np.zeros(N, np.int32)
+    flat = np.zeros(N, np.int32)
+    stalled = np.zeros(N, bool)
+    for _ in range(max_iterations):
+        live = (err > tolerance) & ~stalled
+        if not np.any(live):
+            break
+        idx = np.nonzero(live)[0]
+        work, acc = _passes(rig, pos[idx], targets[idx], weights[idx])
+        r, p, w = rot[idx], pos[idx], wrot[idx]
+        _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx])
+        rot[idx], pos[idx], wrot[idx] = r, p, w
+        new_err = _error(rig, p, targets[idx], weights[idx])
+        iters[idx] += 1
+        flat[idx] = np.where(new_err > err[idx] * (1 - 1e-4), flat[idx] + 1, 0)
+        err[idx] = new_err
+        stalled[idx] = flat[idx] >= 4
+    return rot, pos, err, iters, stalled
