@@ -1,0 +1,48 @@
+"""crowd_ik.init: idempotent, refuses to switch arch, refuses CUDA without a GPU, validates arguments."""
+
+import subprocess
+import sys
+
+import pytest
+
+import crowd_ik
+from crowd_ik import runtime
+
+
+def test_init_is_idempotent_and_reports_cpu():
+    assert crowd_ik.init(arch="cpu") == "cpu"
+    assert crowd_ik.init() == "cpu"
+    assert runtime.current()["arch"] == "cpu"
+
+
+def test_switching_arch_raises():
+    with pytest.raises(RuntimeError, match="already running on cpu"):
+        crowd_ik.init(arch="cuda")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(arch="gpu"), "arch"), (dict(fp=16), "fp"), (dict(threads=0), "threads"), (dict(threads=True), "threads"),
+])
+def test_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        crowd_ik.init(**kwargs)
+
+
+def test_cuda_without_gpu_raises_in_a_fresh_process():
+    code = (
+        "import crowd_ik, crowd_ik.runtime as r\n"
+        "if r._cuda_available(__import__('taichi')):\n    print('HAS_GPU')\n    raise SystemExit(0)\n"
+        "try:\n    crowd_ik.init(arch='cuda')\nexcept RuntimeError as e:\n    print('REFUSED', e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120).stdout
+    if "HAS_GPU" in out:
+        pytest.skip("this machine has a CUDA GPU")
+    assert "REFUSED" in out and "no CUDA GPU" in out
+
+
+def test_import_creates_no_taichi_state():
+    code = "import crowd_ik, crowd_ik.rig, crowd_ik.crowd, crowd_ik.kernels.fk, crowd_ik.runtime as r; print(r.current())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("{}")
+    assert "[Taichi] Starting" not in out.stdout
