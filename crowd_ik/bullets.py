@@ -1,0 +1,375 @@
+"""BulletPool: the game's bullets in a fixed pool of slots, with swept hits on limb capsules and threats.
+
+All state is `ti.ndarray`s allocated once (per-character outputs when the character count is first
+seen); each phase is one kernel launch from `crowd_ik.kernels.projectiles`. Capsule and character
+inputs may be NumPy arrays (converted and checked here) or `ti.ndarray`s (trusted, as inside the game).
+
+Rules (DESIGN "Game rules"):
+- spawn fills the lowest free slots first; a request larger than the free slots keeps its first
+  ones and drops the rest, and says how many it dropped;
+- a hit is the bullet's segment of a (sub-)step passing within bullet radius + limb radius of a limb
+  in the limb's end-of-(sub-)step pose; each bullet's earliest hit counts, ties to the lower capsule id;
+- a character is hit at most once per step: the bullet with the smallest (quantised toi, bullet id)
+  wins it (an int64 atomic_min), whatever the thread order;
+- every bullet that strikes a limb dies, winner or not (the body stops it); on later sub-steps of
+  the same step, a character already hit no longer stops bullets;
+- `advance` sub-steps when a limb moves more than its own radius in a step: k sub-steps of dt / k,
+  the limbs linearly interpolated between the previous and the current pose (each sub-step tests
+  the pose at its end), so a fast limb sweeping through a slow bullet is caught.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from crowd_ik.runtime import ensure_init
+
+MAX_GRID_CELLS = 256  # per axis: the serial prefix sum over at most 65,536 cells stays cheap
+
+
+class Hits(NamedTuple):
+    """One step's hits, one row per character hit, sorted by character id."""
+
+    chars: np.ndarray    # (H,) int32 character ids
+    bullets: np.ndarray  # (H,) int32 winning bullet slots
+    toi: np.ndarray      # (H,) float32 time of impact, fraction of the step in [0, 1]
+    points: np.ndarray   # (H, 3) float32 bullet centre at impact, metres
+
+
+class Threats(NamedTuple):
+    """Per character, the approaching bullet that first passes within reach of its point (or none)."""
+
+    bullet: np.ndarray     # (N,) int32 bullet slot, -1 when none
+    time: np.ndarray       # (N,) float32 seconds to closest approach, -1 when none
+    miss: np.ndarray       # (N,) float32 miss distance at closest approach, metres, -1 when none
+    point: np.ndarray      # (N, 3) float32 bullet position at closest approach (0 when none)
+    direction: np.ndarray  # (N, 3) float32 unit flight direction (0 when none)
+
+
+def _is_ndarray(x) -> bool:
+    from taichi.lang._ndarray import Ndarray
+
+    return isinstance(x, Ndarray)
+
+
+def _points(name: str, x, n: int | None = None):
+    """(n, 3) float32 C-contiguous array (or a ti.ndarray passed through)."""
+    if _is_ndarray(x):
+        return x
+    arr = np.ascontiguousarray(x, dtype=np.float32)
+    if arr.ndim != 2 or arr.shape[1] != 3 or (n is not None and arr.shape[0] != n):
+        want = f"({n}, 3)" if n is not None else "(n, 3)"
+        raise ValueError(f"{name}: expected shape {want} (got {arr.shape})")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: expected finite values (got {arr[~np.isfinite(arr)][0]})")
+    return arr
+
+
+def _vector(name: str, x, n: int, dtype):
+    if _is_ndarray(x):
+        return x
+    arr = np.ascontiguousarray(x, dtype=dtype)
+    if arr.shape != (n,):
+        raise ValueError(f"{name}: expected shape ({n},) (got {arr.shape})")
+    return arr
+
+
+def _length(x) -> int:
+    return int(x.shape[0])
+
+
+def _positive(name: str, value) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name}: expected a positive finite number (got {value!r})")
+    return value
+
+
+def _non_negative(name: str, value) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"{name}: expected a non-negative finite number (got {value!r})")
+    return value
+
+
+class Grid:
+    """A uniform grid on (x, z) listing segment ids per cell, rebuilt by `build` each step.
+
+    bounds = (x_min, z_min, x_max, z_max) metres; cells are squares of `cell_size` metres, grown so
+    that neither axis has more than MAX_GRID_CELLS. Anything outside the bounds clamps to the
+    border cells (still correct, just slower there). `entries` starts at `capacity` slots and
+    doubles when a build needs more (the only allocation after construction).
+    """
+
+    def __init__(self, bounds, cell_size: float, capacity: int):
+        import taichi as ti
+
+        x_min, z_min, x_max, z_max = (float(v) for v in bounds)
+        if not (x_max > x_min and z_max > z_min) or not all(map(math.isfinite, (x_min, z_min, x_max, z_max))):
+            raise ValueError(f"bounds: expected finite (x_min, z_min, x_max, z_max) with max > min (got {tuple(bounds)})")
+        cell = max(_positive("cell_size", cell_size), (x_max - x_min) / MAX_GRID_CELLS, (z_max - z_min) / MAX_GRID_CELLS)
+        self.origin = (x_min, z_min)
+        self.cell = cell
+        self.nx = max(1, min(MAX_GRID_CELLS, math.ceil((x_max - x_min) / cell)))
+        self.nz = max(1, min(MAX_GRID_CELLS, math.ceil((z_max - z_min) / cell)))
+        m = self.nx * self.nz
+        self.cell_count = ti.ndarray(ti.i32, shape=(m,))
+        self.cell_start = ti.ndarray(ti.i32, shape=(m + 1,))
+        self.cursor = ti.ndarray(ti.i32, shape=(m,))
+        self.total = ti.ndarray(ti.i32, shape=(1,))
+        self.entries = ti.ndarray(ti.i32, shape=(max(1, int(capacity)),))
+
+    @property
+    def geometry(self) -> tuple:
+        """(ox, oz, cell, nx, nz): the scalar arguments the kernels take."""
+        return (self.origin[0], self.origin[1], self.cell, self.nx, self.nz)
+
+    def build(self, a0, b0, a1, b1, radius, pad: float, owner, owner_alive) -> int:
+        """Bin segments (S, 3) x 4 (two poses), grown by radius (S,) + pad; only live owners. Returns entries used."""
+        import taichi as ti
+
+        from crowd_ik.kernels import projectiles as kp
+
+        kp.clear_cells(self.cell_count)
+        kp.count_cells(a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, self.cell_count)
+        kp.scan_cells(self.cell_count, self.cell_start, self.cursor, self.total)
+        total = int(self.total.to_numpy()[0])
+        if total > self.entries.shape[0]:
+            self.entries = ti.ndarray(ti.i32, shape=(max(total, 2 * self.entries.shape[0]),))
+        kp.fill_cells(a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, self.cursor, self.entries)
+        return total
+
+    def pairs(self) -> np.ndarray:
+        """(K, 2) int64 (cell, segment id) pairs sorted by cell then id: the grid's contents, for tests."""
+        start = self.cell_start.to_numpy().astype(np.int64)
+        total = int(start[-1])
+        seg = self.entries.to_numpy()[:total].astype(np.int64)
+        cell = np.repeat(np.arange(len(start) - 1), np.diff(start))
+        pairs = np.stack([cell, seg], axis=1)
+        return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def substep_count(prev_a, prev_b, a, b, radii, owner, char_alive, max_substeps: int = 16) -> int:
+    """Sub-steps needed so no live limb end moves more than its own radius per sub-step, in [1, max_substeps].
+
+    prev_a, prev_b, a, b: (C, 3) limb capsule ends at the previous and the current step, metres;
+    radii (C,) metres; owner (C,) character ids; char_alive (N,) 0/1.
+    """
+    from crowd_ik.kernels import projectiles as kp
+
+    ensure_init()
+    max_substeps = int(max_substeps)
+    if not 1 <= max_substeps <= kp.MAX_SUBSTEPS:
+        raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
+    out = np.zeros(1, np.int32)
+    kp.count_substeps(prev_a, prev_b, a, b, radii, owner, char_alive, out)
+    return int(min(max(int(out[0]), 1), max_substeps))
+
+
+class BulletPool:
+    """A fixed pool of `pool_size` bullet slots of one radius (metres), with its grids.
+
+    bounds (x_min, z_min, x_max, z_max) and cell_size set the broad-phase grids (both the limbs'
+    and the bullets' threat grid); bullets farther than `far` metres from the origin die.
+    """
+
+    def __init__(self, pool_size: int, radius: float = 0.03, bounds=(-32.0, -32.0, 32.0, 32.0),
+                 cell_size: float = 1.0, far: float = 1000.0, capsule_capacity: int = 4096):
+        import taichi as ti
+
+        ensure_init()
+        if isinstance(pool_size, bool) or not isinstance(pool_size, (int, np.integer)) or pool_size < 1:
+            raise ValueError(f"pool_size: expected a positive integer (got {pool_size!r})")
+        self.pool_size = int(pool_size)
+        self.radius = _positive("radius", radius)
+        self.far = _positive("far", far)
+        P = self.pool_size
+        vec3 = ti.math.vec3
+        self.pos = ti.ndarray(vec3, shape=(P,))
+        self.vel = ti.ndarray(vec3, shape=(P,))
+        self.prev = ti.ndarray(vec3, shape=(P,))
+        self.age = ti.ndarray(ti.f32, shape=(P,))
+        self.alive = ti.ndarray(ti.i32, shape=(P,))
+        self.bullet_char = ti.ndarray(ti.i32, shape=(P,))    # character struck on the last collide, -1
+        self.bullet_key = ti.ndarray(ti.i64, shape=(P,))
+        self.bullet_toi = ti.ndarray(ti.f32, shape=(P,))
+        self.bullet_point = ti.ndarray(vec3, shape=(P,))
+        self.bullet_end = ti.ndarray(vec3, shape=(P,))       # pos + vel * horizon, for threats
+        self._ident = ti.ndarray(ti.i32, shape=(P,))
+        self._ident.from_numpy(np.arange(P, dtype=np.int32))
+        self._zero = ti.ndarray(ti.f32, shape=(P,))
+        self.bullet_char.fill(-1)
+        self.limb_grid = Grid(bounds, cell_size, 4 * capsule_capacity)
+        self.threat_grid = Grid(bounds, cell_size, 4 * P)
+        self._n_chars = -1
+        self._threat_out = None
+        self.last_substeps = 0
+
+    # -- host views ---------------------------------------------------------------------------
+
+    def positions(self) -> np.ndarray:
+        """(P, 3) float32 positions of every slot (dead slots hold stale values; see alive_mask)."""
+        return self.pos.to_numpy()
+
+    def velocities(self) -> np.ndarray:
+        """(P, 3) float32 velocities of every slot, m/s."""
+        return self.vel.to_numpy()
+
+    def alive_mask(self) -> np.ndarray:
+        """(P,) bool: slots holding a live bullet."""
+        return self.alive.to_numpy() != 0
+
+    def count_alive(self) -> int:
+        return int(np.count_nonzero(self.alive.to_numpy()))
+
+    def trails(self) -> tuple[np.ndarray, np.ndarray]:
+        """(starts, ends), each (M, 3) float32: the live bullets' last segments prev -> pos, for drawing."""
+        live = self.alive_mask()
+        return self.prev.to_numpy()[live], self.pos.to_numpy()[live]
+
+    def struck(self) -> np.ndarray:
+        """(P,) int32: the character each bullet struck on the last collide/advance (winner or not), -1."""
+        return self.bullet_char.to_numpy()
+
+    def clear(self) -> None:
+        """Kill every bullet."""
+        self.alive.fill(0)
+
+    # -- phases -------------------------------------------------------------------------------
+
+    def spawn(self, origins, velocities) -> tuple[np.ndarray, int]:
+        """Start K bullets at origins (K, 3) m with velocities (K, 3) m/s in the lowest free slots.
+
+        Returns (slots (K',) int32 used, in request order; dropped = K - K'): when fewer than K
+        slots are free, the first K' requests get them and the rest are dropped.
+        """
+        from crowd_ik.kernels import projectiles as kp
+
+        origins = _points("origins", origins)
+        velocities = _points("velocities", velocities, origins.shape[0])
+        free = np.flatnonzero(self.alive.to_numpy() == 0)
+        n = min(len(free), origins.shape[0])
+        slots = np.ascontiguousarray(free[:n], dtype=np.int32)
+        if n:
+            kp.spawn_bullets(slots, np.ascontiguousarray(origins[:n]), np.ascontiguousarray(velocities[:n]),
+                             self.pos, self.vel, self.age, self.alive, self.prev)
+        return slots, int(origins.shape[0] - n)
+
+    def step(self, dt: float, gravity: float = 9.81, drag: float = 0.0, lifetime: float = 3.0) -> None:
+        """Integrate every live bullet over dt seconds (gravity m/s^2 down, drag 1/m, lifetime s)."""
+        from crowd_ik.kernels import projectiles as kp
+
+        kp.integrate_bullets(self.pos, self.vel, self.age, self.alive, self.prev, _positive("dt", dt),
+                             _non_negative("gravity", gravity), _non_negative("drag", drag),
+                             _positive("lifetime", lifetime), self.far)
+
+    def collide(self, capsules_a, capsules_b, radii, owner, char_alive, n_chars: int) -> Hits:
+        """Hits of the live bullets' last segments on limbs in their end-of-step pose.
+
+        capsules_a, capsules_b (C, 3) limb axis ends, metres; radii (C,) metres; owner (C,) character
+        ids; char_alive (n_chars,) 0/1. Every bullet that struck a limb dies.
+        """
+        return self._run(None, capsules_a, capsules_b, capsules_a, capsules_b, radii, owner, char_alive,
+                         n_chars, substeps=1)
+
+    def advance(self, dt: float, gravity: float, drag: float, lifetime: float, capsules_a, capsules_b, radii,
+                owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16) -> Hits:
+        """step + collide, sub-stepped: k = substep_count(prev pose, pose) sub-steps of dt / k.
+
+        prev_a, prev_b (C, 3): the limbs at the previous step (None: the limbs did not move, k = 1).
+        Sub-step j tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
+        number used is left in self.last_substeps.
+        """
+        args = (_positive("dt", dt), _non_negative("gravity", gravity), _non_negative("drag", drag),
+                _positive("lifetime", lifetime))
+        capsules_a = _points("capsules_a", capsules_a)
+        if prev_a is None or prev_b is None:
+            prev_a, prev_b = capsules_a, capsules_b
+        return self._run(args, prev_a, prev_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars,
+                         substeps=None, max_substeps=max_substeps)
+
+    def threats(self, points, char_alive, horizon: float, reach: float) -> Threats:
+        """Per character, the bullet that first passes within `reach` m of points (N, 3) within `horizon` s.
+
+        Straight-line prediction (see kernels.projectiles.find_threats); the bullets are binned by
+        their path over the horizon, so each character reads one grid cell.
+        """
+        import taichi as ti
+
+        from crowd_ik.kernels import projectiles as kp
+
+        horizon = _positive("horizon", horizon)
+        reach = _positive("reach", reach)
+        points = _points("points", points)
+        n = _length(points)
+        char_alive = _vector("char_alive", char_alive, n, np.int32)
+        if self._threat_out is None or self._threat_out[0].shape[0] != n:
+            self._threat_out = (ti.ndarray(ti.i32, shape=(n,)), ti.ndarray(ti.f32, shape=(n,)),
+                                ti.ndarray(ti.f32, shape=(n,)), ti.ndarray(ti.math.vec3, shape=(n,)),
+                                ti.ndarray(ti.math.vec3, shape=(n,)))
+        out = self._threat_out
+        kp.predict_bullets(self.pos, self.vel, horizon, self.bullet_end)
+        self.threat_grid.build(self.pos, self.bullet_end, self.pos, self.bullet_end, self._zero, reach,
+                               self._ident, self.alive)
+        kp.find_threats(points, char_alive, self.pos, self.vel, self.alive, horizon, reach,
+                        *self.threat_grid.geometry, self.threat_grid.cell_start, self.threat_grid.entries, *out)
+        return Threats(*(o.to_numpy() for o in out))
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _characters(self, n_chars: int) -> None:
+        import taichi as ti
+
+        if n_chars != self._n_chars:
+            self.hit_key = ti.ndarray(ti.i64, shape=(n_chars,))     # (N,) winning key, NO_HIT when none
+            self.hit_bullet = ti.ndarray(ti.i32, shape=(n_chars,))  # (N,) winning bullet slot, -1 when none
+            self._n_chars = n_chars
+
+    def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16) -> Hits:
+        from crowd_ik.kernels import projectiles as kp
+
+        if isinstance(n_chars, bool) or not isinstance(n_chars, (int, np.integer)) or n_chars < 1:
+            raise ValueError(f"n_chars: expected a positive integer (got {n_chars!r})")
+        n_chars = int(n_chars)
+        a1 = _points("capsules_a", a1)
+        n_caps = _length(a1)
+        b1 = _points("capsules_b", b1, n_caps)
+        a0 = _points("prev_a", a0, n_caps)
+        b0 = _points("prev_b", b0, n_caps)
+        radii = _vector("radii", radii, n_caps, np.float32)
+        owner = _vector("owner", owner, n_caps, np.int32)
+        char_alive = _vector("char_alive", char_alive, n_chars, np.int32)
+        if isinstance(radii, np.ndarray) and n_caps and not np.all(radii > 0):
+            raise ValueError(f"radii: expected positive radii (got {radii[~(radii > 0)][0]})")
+        if isinstance(owner, np.ndarray) and n_caps and (owner.min() < 0 or owner.max() >= n_chars):
+            bad = owner[(owner < 0) | (owner >= n_chars)][0]
+            raise ValueError(f"owner: expected character ids in [0, {n_chars}) (got {bad})")
+        if n_caps == 0:  # nothing to hit: bullets only fly
+            a0 = b0 = a1 = b1 = np.zeros((1, 3), np.float32)
+            radii = np.ones(1, np.float32)
+            owner = np.zeros(1, np.int32)
+            char_alive = np.zeros(n_chars, np.int32)
+        if substeps is None:
+            substeps = substep_count(a0, b0, a1, b1, radii, owner, char_alive, max_substeps)
+        self.last_substeps = substeps
+        self._characters(n_chars)
+        grid = self.limb_grid
+        grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive)
+        kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
+        for j in range(substeps):
+            if step_args is not None:
+                dt, gravity, drag, lifetime = step_args
+                kp.integrate_bullets(self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps,
+                                     gravity, drag, lifetime, self.far)
+            s = (j + 1) / substeps
+            kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
+                               char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,
+                               self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point)
+            kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
+        hit_bullet = self.hit_bullet.to_numpy()
+        chars = np.flatnonzero(hit_bullet >= 0).astype(np.int32)
+        bullets = hit_bullet[chars]
+        return Hits(chars, bullets, self.bullet_toi.to_numpy()[bullets], self.bullet_point.to_numpy()[bullets])

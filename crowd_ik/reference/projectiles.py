@@ -1,0 +1,175 @@
+"""NumPy twins of kernels/projectiles.py: brute force (no grid), vectorised, written for clarity.
+
+The swept test here is analytic (Ericson, Real-Time Collision Detection, 5.3.7: segment against
+cylinder and spheres), an independent oracle for the kernels' golden-section + bisection search.
+Shapes and units as in the kernels: P bullets, C capsules, N characters; metres, seconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+NO_HIT = np.iinfo(np.int64).max
+TOI_BITS = 24
+
+
+def integrate(pos, vel, age, alive, dt, gravity, drag, lifetime, far):
+    """One semi-implicit Euler step of the live bullets; returns (pos, vel, age, alive, prev) copies."""
+    pos, vel, age, alive = (np.array(x) for x in (pos, vel, age, alive))
+    live = alive != 0
+    prev = pos.copy()
+    w = vel[live] + np.array([0.0, -gravity, 0.0], dtype=vel.dtype) * vel.dtype.type(dt)
+    v = w / (1.0 + drag * np.linalg.norm(w, axis=1, keepdims=True) * dt)
+    vel[live] = v
+    pos[live] = pos[live] + v * vel.dtype.type(dt)
+    age[live] = age[live] + age.dtype.type(dt)
+    dead = (age > lifetime) | (pos[:, 1] < -1.0) | (np.linalg.norm(pos, axis=1) > far)
+    alive[live & dead] = 0
+    return pos, vel, age, alive, prev
+
+
+def spawn(slots, origins, velocities, pos, vel, age, alive, prev):
+    """Bullets k go live in slots[k]; returns (pos, vel, age, alive, prev) copies."""
+    pos, vel, age, alive, prev = (np.array(x) for x in (pos, vel, age, alive, prev))
+    pos[slots] = origins
+    prev[slots] = origins
+    vel[slots] = velocities
+    age[slots] = 0.0
+    alive[slots] = 1
+    return pos, vel, age, alive, prev
+
+
+def cell_span(lo, hi, origin, cell, n):
+    """First and last clamped cell index of [lo, hi] on one axis (arrays)."""
+    i0 = np.floor(np.clip((lo - origin) / cell, 0.0, n - 1.0)).astype(np.int64)
+    i1 = np.floor(np.clip((hi - origin) / cell, 0.0, n - 1.0)).astype(np.int64)
+    return i0, i1
+
+
+def grid_pairs(a0, b0, a1, b1, radius, pad, owner, owner_alive, ox, oz, cell, nx, nz):
+    """(cell, segment) pairs of the grid as a (K, 2) int64 array sorted by cell then segment.
+
+    Segment s covers the cells its two poses' (x, z) box, grown by radius[s] + pad, overlaps;
+    dead owners' segments are left out.
+    """
+    pts = np.stack([a0, b0, a1, b1])
+    grow = (np.asarray(radius, np.float64) + pad)[:, None]
+    lo = pts.min(axis=0) - grow
+    hi = pts.max(axis=0) + grow
+    i0, i1 = cell_span(lo[:, 0], hi[:, 0], ox, cell, nx)
+    k0, k1 = cell_span(lo[:, 2], hi[:, 2], oz, cell, nz)
+    live = np.asarray(owner_alive)[np.asarray(owner)] != 0
+    ids = np.flatnonzero(live)
+    wi, wk = (i1 - i0 + 1)[ids], (k1 - k0 + 1)[ids]
+    seg = np.repeat(ids, wi * wk)
+    local = np.arange(len(seg)) - np.repeat(np.cumsum(wi * wk) - wi * wk, wi * wk)
+    ix = i0[seg] + local % np.repeat(wi, wi * wk)
+    iz = k0[seg] + local // np.repeat(wi, wi * wk)
+    pairs = np.stack([iz * nx + ix, seg], axis=1)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def point_segment_distance(p, a, b):
+    """Distance from points p to segments [a, b] (broadcast over leading axes)."""
+    e = b - a
+    ee = np.sum(e * e, axis=-1)
+    u = np.where(ee > 0, np.sum((p - a) * e, axis=-1) / np.where(ee > 0, ee, 1.0), 0.0)
+    return np.linalg.norm(p - (a + np.clip(u, 0.0, 1.0)[..., None] * e), axis=-1)
+
+
+def _sphere_entry(p0, d, c, r):
+    m = p0 - c
+    A = np.sum(d * d, axis=-1)
+    B = np.sum(m * d, axis=-1)
+    C = np.sum(m * m, axis=-1) - r * r
+    disc = B * B - A * C
+    ok = (A > 0) & (disc >= 0)
+    t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, A, 1.0)
+    return np.where(ok & (t >= 0.0), t, np.inf)
+
+
+def _cylinder_entry(p0, d, a, e, r):
+    ee = np.sum(e * e, axis=-1)
+    safe = np.where(ee > 0, ee, 1.0)[..., None]
+    m = p0 - a
+    mp = m - np.sum(m * e, axis=-1)[..., None] / safe * e
+    dp = d - np.sum(d * e, axis=-1)[..., None] / safe * e
+    A = np.sum(dp * dp, axis=-1)
+    B = np.sum(mp * dp, axis=-1)
+    C = np.sum(mp * mp, axis=-1) - r * r
+    disc = B * B - A * C
+    ok = (ee > 0) & (A > 0) & (C > 0) & (disc >= 0)
+    t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, A, 1.0)
+    u = np.sum((m + t[..., None] * d) * e, axis=-1) / safe[..., 0]
+    return np.where(ok & (t >= 0.0) & (u >= 0.0) & (u <= 1.0), t, np.inf)
+
+
+def sweep_toi(p0, p1, a, b, r):
+    """Smallest t in [0, 1] with dist(p0 + t (p1 - p0), [a, b]) <= r, else -1 (broadcast, analytic).
+
+    The capsule is the union of its lateral cylinder and its two end spheres; a point starting
+    outside enters the union when it first enters one of them: the smaller root of each quadratic.
+    """
+    p0, p1, a, b, r = (np.asarray(x, np.float64) for x in (p0, p1, a, b, r))
+    d = p1 - p0
+    t = np.minimum(np.minimum(_sphere_entry(p0, d, a, r), _sphere_entry(p0, d, b, r)),
+                   _cylinder_entry(p0, d, a, b - a, r))
+    t = np.where(t <= 1.0, t, -1.0)
+    return np.where(point_segment_distance(p0, a, b) <= r, 0.0, t)
+
+
+def collide(prev, pos, alive, bullet_radius, a, b, radius, owner, char_alive, n_chars):
+    """Brute-force hits of one step against capsules in their end-of-step pose (a, b).
+
+    Returns (bullet_char (P,) int32, bullet_toi (P,) float64, hit_bullet (N,) int32):
+    every live bullet's earliest (toi, capsule id) hit on a live character (or -1), and per
+    character the winner by (quantised toi, bullet id) (or -1).
+    """
+    owner = np.asarray(owner)
+    live_c = np.asarray(char_alive)[owner] != 0
+    toi = sweep_toi(np.asarray(prev)[:, None], np.asarray(pos)[:, None], np.asarray(a)[None],
+                    np.asarray(b)[None], bullet_radius + np.asarray(radius, np.float64)[None])
+    toi = np.where((toi >= 0) & live_c[None] & (np.asarray(alive) != 0)[:, None], toi, np.inf)
+    first = np.argmin(toi, axis=1)  # lowest capsule id among equal times
+    t = toi[np.arange(len(toi)), first] if len(toi) else np.zeros(0)
+    hit = np.isfinite(t)
+    bullet_char = np.where(hit, owner[first] if len(owner) else -1, -1).astype(np.int32)
+    bullet_toi = np.where(hit, t, -1.0)
+    hit_bullet = np.full(n_chars, -1, np.int32)
+    p = np.flatnonzero(hit)
+    qt = np.minimum(np.floor(bullet_toi[p] * 2**TOI_BITS), 2**TOI_BITS - 1)
+    order = np.lexsort((p, qt))  # by quantised toi, then bullet id
+    chars, firsts = np.unique(bullet_char[p][order], return_index=True)
+    hit_bullet[chars] = p[order][firsts]
+    return bullet_char, bullet_toi, hit_bullet
+
+
+def substeps(a0, b0, a1, b1, radius, owner, char_alive):
+    """max over live limbs of ceil(max end displacement / radius), at least 0."""
+    live = np.asarray(char_alive)[np.asarray(owner)] != 0
+    move = np.maximum(np.linalg.norm(a1 - a0, axis=1), np.linalg.norm(b1 - b0, axis=1))
+    k = np.ceil(np.minimum(move / radius, 2.0**20))[live]
+    return int(k.max()) if len(k) else 0
+
+
+def threats(points, char_alive, pos, vel, alive, horizon, reach):
+    """Brute-force twin of find_threats (P >= 1): (bullet (N,), time (N,), miss (N,), point (N, 3), dir (N, 3))."""
+    points, pos, vel = (np.asarray(x, np.float64) for x in (points, pos, vel))
+    rel = points[:, None] - pos[None]                       # (N, P, 3)
+    vv = np.sum(vel * vel, axis=1)[None]                    # (1, P)
+    ahead = np.sum(rel * vel[None], axis=2)
+    t = np.minimum(ahead / np.where(vv > 0, vv, 1.0), horizon)
+    miss = np.linalg.norm(rel - t[..., None] * vel[None], axis=2)
+    ok = (vv > 0) & (ahead > 0) & (miss <= reach) & (np.asarray(alive) != 0)[None]
+    ok &= (np.asarray(char_alive) != 0)[:, None]
+    key = np.where(ok, t, np.inf)
+    best = np.argmin(key, axis=1)                           # lowest bullet id among equal times
+    n = np.arange(len(points))
+    found = np.isfinite(key[n, best])
+    bullet = np.where(found, best, -1).astype(np.int32)
+    time = np.where(found, t[n, best], -1.0)
+    miss_d = np.where(found, miss[n, best], -1.0)
+    v = vel[best]
+    point = np.where(found[:, None], pos[best] + time[:, None] * v, 0.0)
+    direction = np.where(found[:, None], v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-30), 0.0)
+    return bullet, time, miss_d, point, direction
