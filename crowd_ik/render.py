@@ -1,0 +1,390 @@
+"""Off-screen frames: a pinhole Camera, and a Renderer that rasterises limbs, bullets and shards
+in Taichi and draws trails and the HUD with OpenCV.
+
+A frame is an (H, W, 3) uint8 BGR array, row 0 at the top, so the same drawing serves the video
+sinks, PNG stills and the mouse mode. The world is y up, metres, ground plane y = 0.
+
+The heavy part is four kernel launches per frame whatever the number of primitives
+(kernels/raster.py explains the method): clear the buffers, rasterise every capsule and sphere
+into an integer z-buffer (exact ray-capsule hits, `atomic_min` on (depth bits, id) keys, so frames
+are bit-identical across runs and thread counts), splat soft ground shadows, shade every pixel
+(sky gradient, ground grid, shadows, Lambert + ambient + rim capsules). Bullet trails (anti-aliased
+lines fading along their length) and HUD text on a dark box are drawn afterwards with OpenCV.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from crowd_ik.runtime import ensure_init
+
+NEAR = 0.05  # metres: hits nearer than this view depth are clipped
+TRAIL_COLOR = (90, 200, 255)  # BGR: warm yellow-orange
+TRAIL_ALPHA = 0.85  # opacity at a trail's head, fading to 0 at its tail
+TRAIL_WIDTH = 0.04  # metres: trail thickness in the world, at least 1 pixel, at most 3
+TRAIL_PIECES = 6  # fade steps along a trail
+HUD_MARGIN = 8  # pixels
+
+
+def _vec3(name: str, value) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name}: expected 3 finite numbers (got {value!r})")
+    return v
+
+
+def _size(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 16 or value % 2:
+        raise ValueError(f"{name}: expected an even integer >= 16 (got {value!r})")
+    return int(value)
+
+
+class Camera:
+    """Perspective pinhole camera.
+
+    position, look_at: (3,) world points, metres; fov_deg: vertical field of view in degrees
+    (0 < fov < 180); width, height: image size in pixels (even, >= 16); up: world up hint.
+    Pixel coordinates are x right, y down, with pixel (i, j)'s centre at (i, j) (OpenCV's
+    convention), so the image centre is ((W - 1) / 2, (H - 1) / 2). Depth is the view depth: the
+    distance along the viewing direction, negative behind the camera.
+    """
+
+    def __init__(self, position, look_at, fov_deg, width, height, up=(0.0, 1.0, 0.0)):
+        self.position = _vec3("camera position", position)
+        self.look_at = _vec3("camera look_at", look_at)
+        up_hint = _vec3("camera up", up)
+        if isinstance(fov_deg, bool) or not isinstance(fov_deg, (int, float, np.floating, np.integer)) or not 0.0 < float(fov_deg) < 180.0:
+            raise ValueError(f"camera fov_deg: expected a number in (0, 180) (got {fov_deg!r})")
+        self.fov_deg = float(fov_deg)
+        self.width = _size("camera width", width)
+        self.height = _size("camera height", height)
+        forward = self.look_at - self.position
+        dist = np.linalg.norm(forward)
+        if dist < 1e-9:
+            raise ValueError(f"camera look_at: must differ from position (got {list(self.look_at)})")
+        self.forward = forward / dist
+        right = np.cross(self.forward, up_hint)
+        if np.linalg.norm(right) < 1e-6 * max(np.linalg.norm(up_hint), 1e-300):
+            raise ValueError(f"camera up: must not be parallel to the viewing direction (got {list(up_hint)})")
+        self.right = right / np.linalg.norm(right)
+        self.up = np.cross(self.right, self.forward)
+        self.focal = 0.5 * self.height / math.tan(math.radians(self.fov_deg) / 2.0)
+        self.cx = (self.width - 1) / 2.0
+        self.cy = (self.height - 1) / 2.0
+
+    def __repr__(self) -> str:
+        return (
+            f"Camera(position={self.position.tolist()}, look_at={self.look_at.tolist()}, "
+            f"fov_deg={self.fov_deg}, width={self.width}, height={self.height})"
+        )
+
+    @property
+    def view_matrix(self) -> np.ndarray:
+        """(4, 4) world -> camera transform, OpenGL style: camera x right, y up, looking down -z."""
+        m = np.eye(4)
+        m[0, :3], m[1, :3], m[2, :3] = self.right, self.up, -self.forward
+        m[:3, 3] = -m[:3, :3] @ self.position
+        return m
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """(3, 3) pixel matrix K: [u, v, 1] ~ K @ [x_right, y_down, depth]."""
+        return np.array([[self.focal, 0.0, self.cx], [0.0, self.focal, self.cy], [0.0, 0.0, 1.0]])
+
+    def project(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """points (M, 3) world -> (pixels (M, 2) float64 x right y down, depth (M,)).
+
+        Points with depth <= NEAR (behind or at the camera) get NaN pixels.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"project: points: expected shape (M, 3) (got {p.shape})")
+        q = p - self.position
+        depth = q @ self.forward
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.cx + self.focal * (q @ self.right) / depth
+            v = self.cy - self.focal * (q @ self.up) / depth
+        pix = np.stack([u, v], axis=1)
+        pix[depth <= NEAR] = np.nan
+        return pix, depth
+
+    def ray(self, px, py) -> tuple[np.ndarray, np.ndarray]:
+        """Ray through pixel coordinates (px, py) (scalars or arrays of one shape): (origin (3,),
+        unit direction (..., 3)), for picking."""
+        px = np.asarray(px, dtype=np.float64)
+        py = np.asarray(py, dtype=np.float64)
+        if px.shape != py.shape or not (np.all(np.isfinite(px)) and np.all(np.isfinite(py))):
+            raise ValueError(f"ray: px, py: expected finite values of one shape (got shapes {px.shape}, {py.shape})")
+        d = (
+            self.forward * self.focal
+            + self.right * (px - self.cx)[..., None]
+            - self.up * (py - self.cy)[..., None]
+        )
+        return self.position.copy(), d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def pixel_scale(self, depth):
+        """Pixels per metre (of a length facing the camera) at view depth `depth`."""
+        return self.focal / np.asarray(depth, dtype=np.float64)
+
+    def packed(self) -> np.ndarray:
+        """(16,) float32: eye, right, up, forward, focal, cx, cy, near (the kernels' layout)."""
+        return np.concatenate(
+            [self.position, self.right, self.up, self.forward, [self.focal, self.cx, self.cy, NEAR]]
+        ).astype(np.float32)
+
+
+def decode_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """z-buffer keys (H, W) int64 -> (ids (H, W) int32, -1 where empty; depth (H, W) float32, inf where empty)."""
+    from crowd_ik.kernels.raster import EMPTY_ID
+
+    ids = (keys & 0xFFFFFFFF).astype(np.int64)
+    depth = (keys >> 32).astype(np.int32).view(np.float32)
+    empty = ids == EMPTY_ID
+    return np.where(empty, -1, ids).astype(np.int32), np.where(empty, np.float32(np.inf), depth)
+
+
+def _points(name: str, value, limit: int, limit_name: str) -> np.ndarray:
+    a = np.asarray(value, dtype=np.float32)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"render: {name}: expected shape (M, 3) (got {a.shape})")
+    if a.shape[0] > limit:
+        raise ValueError(f"render: {name}: {a.shape[0]} rows exceed {limit_name}={limit}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"render: {name}: values must be finite (got NaN or inf)")
+    return a
+
+
+def _radii(name: str, value, m: int) -> np.ndarray:
+    r = np.asarray(value, dtype=np.float32)
+    if r.shape != (m,):
+        raise ValueError(f"render: {name}: expected shape ({m},) (got {r.shape})")
+    if not np.all(np.isfinite(r)) or (m and r.min() < 0.0):
+        raise ValueError(f"render: {name}: expected finite values >= 0 (got min {r.min() if m else None})")
+    return r
+
+
+def _colors(name: str, value, m: int) -> np.ndarray:
+    c = np.asarray(value)
+    if c.shape not in ((m, 3), (3,)):
+        raise ValueError(f"render: {name}: expected shape ({m}, 3) or (3,) (got {c.shape})")
+    if c.dtype == np.uint8:
+        c = c.astype(np.float32) / 255.0
+    else:
+        c = c.astype(np.float32)
+        if not np.all(np.isfinite(c)) or (c.size and (c.min() < 0.0 or c.max() > 1.0)):
+            raise ValueError(f"render: {name}: float colours must lie in [0, 1] (got {c.min()}..{c.max()})")
+    return np.broadcast_to(c, (m, 3))
+
+
+class Renderer:
+    """Draws frames of capsules (limbs) and spheres (bullets, shards) seen by `camera`.
+
+    All Taichi buffers are allocated once here, sized for `max_capsules` + `max_spheres`
+    primitives and the camera's image size; `render` only copies this frame's data in.
+    `camera` may be replaced between frames by one of the same image size.
+    """
+
+    def __init__(self, camera: Camera, max_capsules: int, max_spheres: int = 0):
+        if not isinstance(camera, Camera):
+            raise ValueError(f"Renderer: camera: expected a Camera (got {type(camera).__name__})")
+        for name, v in (("max_capsules", max_capsules), ("max_spheres", max_spheres)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise ValueError(f"Renderer: {name}: expected an integer >= 0 (got {v!r})")
+        ensure_init()
+        import taichi as ti
+
+        self._camera = camera
+        self.max_capsules = int(max_capsules)
+        self.max_spheres = int(max_spheres)
+        p = max(1, self.max_capsules + self.max_spheres)
+        h, w = camera.height, camera.width
+        self._host_a = np.zeros((p, 3), np.float32)
+        self._host_b = np.zeros((p, 3), np.float32)
+        self._host_r = np.zeros(p, np.float32)
+        self._host_c = np.zeros((p, 3), np.float32)
+        self._cam = ti.ndarray(ti.f32, shape=16)
+        self._pa = ti.ndarray(ti.f32, shape=(p, 3))
+        self._pb = ti.ndarray(ti.f32, shape=(p, 3))
+        self._radius = ti.ndarray(ti.f32, shape=p)
+        self._color = ti.ndarray(ti.f32, shape=(p, 3))
+        self._keys = ti.ndarray(ti.i64, shape=(h, w))
+        self._shadow = ti.ndarray(ti.i32, shape=(h, w))
+        self._frame = ti.ndarray(ti.u8, shape=(h, w, 3))
+        self._count = 0
+        self.timings = {"raster_ms": 0.0, "overlay_ms": 0.0}
+
+    @property
+    def camera(self) -> Camera:
+        return self._camera
+
+    @camera.setter
+    def camera(self, camera: Camera) -> None:
+        if not isinstance(camera, Camera):
+            raise ValueError(f"Renderer.camera: expected a Camera (got {type(camera).__name__})")
+        if (camera.width, camera.height) != (self._camera.width, self._camera.height):
+            raise ValueError(
+                f"Renderer.camera: image size must stay {self._camera.width}x{self._camera.height} "
+                f"(got {camera.width}x{camera.height})"
+            )
+        self._camera = camera
+
+    def render(
+        self,
+        capsules_a,
+        capsules_b,
+        radii,
+        colors,
+        spheres=None,
+        sphere_radii=None,
+        sphere_colors=None,
+        trails=None,
+        hud_lines=None,
+    ) -> np.ndarray:
+        """One frame: (H, W, 3) uint8 BGR.
+
+        capsules_a, capsules_b: (M, 3) end points, metres; radii: (M,) metres; colors: (M, 3) or
+        (3,), BGR floats in 0..1 or uint8. spheres: (K, 3) centres; sphere_radii (K,);
+        sphere_colors (K, 3) or (3,). trails: (T, 2, 3) segments, [:, 0] the head (opaque) and
+        [:, 1] the tail (transparent). hud_lines: list of str, drawn top-left.
+        """
+        t_start = time.perf_counter()
+        a = _points("capsules_a", capsules_a, self.max_capsules, "max_capsules")
+        b = _points("capsules_b", capsules_b, self.max_capsules, "max_capsules")
+        if a.shape != b.shape:
+            raise ValueError(f"render: capsules_b: expected shape {a.shape} like capsules_a (got {b.shape})")
+        m = a.shape[0]
+        r = _radii("radii", radii, m)
+        c = _colors("colors", colors, m)
+        if spheres is None:
+            s = np.zeros((0, 3), np.float32)
+            sr = np.zeros(0, np.float32)
+            sc = np.zeros((0, 3), np.float32)
+        else:
+            s = _points("spheres", spheres, self.max_spheres, "max_spheres")
+            k = s.shape[0]
+            if sphere_radii is None or sphere_colors is None:
+                raise ValueError("render: spheres given without sphere_radii and sphere_colors (got None)")
+            sr = _radii("sphere_radii", sphere_radii, k)
+            sc = _colors("sphere_colors", sphere_colors, k)
+        k = s.shape[0]
+        n = m + k
+        self._host_a[:m], self._host_b[:m], self._host_r[:m], self._host_c[:m] = a, b, r, c
+        self._host_a[m:n], self._host_b[m:n], self._host_r[m:n], self._host_c[m:n] = s, s, sr, sc
+        self._count = n
+        frame = self._raster(n)
+        t_mid = time.perf_counter()
+        if trails is not None:
+            draw_trails(frame, self._camera, trails)
+        if hud_lines:
+            draw_hud(frame, hud_lines)
+        t_end = time.perf_counter()
+        self.timings = {"raster_ms": 1e3 * (t_mid - t_start), "overlay_ms": 1e3 * (t_end - t_mid)}
+        return frame
+
+    def _raster(self, n: int) -> np.ndarray:
+        from crowd_ik.kernels import raster as kr
+
+        self._cam.from_numpy(self._camera.packed())
+        if n:
+            self._pa.from_numpy(self._host_a)
+            self._pb.from_numpy(self._host_b)
+            self._radius.from_numpy(self._host_r)
+            self._color.from_numpy(self._host_c)
+        kr.clear_buffers(self._keys, self._shadow)
+        kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys)
+        kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow)
+        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._frame)
+        return self._frame.to_numpy()
+
+    def id_buffer(self) -> tuple[np.ndarray, np.ndarray]:
+        """The last frame's z-buffer: (ids (H, W) int32, -1 where no primitive; depth (H, W)
+        float32 view depth, inf where none). Ids count capsules first, then spheres."""
+        return decode_keys(self._keys.to_numpy())
+
+    def shadow_buffer(self) -> np.ndarray:
+        """The last frame's ground darkness, (H, W) float32 in 0..1."""
+        from crowd_ik.kernels.raster import SHADOW_SCALE
+
+        return self._shadow.to_numpy().astype(np.float32) / SHADOW_SCALE
+
+
+def _clip_near(p0: np.ndarray, p1: np.ndarray, z0: np.ndarray, z1: np.ndarray, near: float):
+    """Move the end of each segment that lies behind the near plane onto it."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s0 = np.where(z0 < near, (near - z0) / (z1 - z0), 0.0)
+        s1 = np.where(z1 < near, (near - z1) / (z0 - z1), 0.0)
+    return p0 + (p1 - p0) * s0[:, None], p1 + (p0 - p1) * s1[:, None]
+
+
+def draw_trails(frame: np.ndarray, camera: Camera, trails) -> None:
+    """Draw (T, 2, 3) world segments into frame in place: anti-aliased lines, opaque at [:, 0]
+    fading to transparent at [:, 1], composited through one alpha layer (no depth test)."""
+    import cv2
+
+    seg = np.asarray(trails, dtype=np.float64)
+    if seg.ndim != 3 or seg.shape[1:] != (2, 3):
+        raise ValueError(f"render: trails: expected shape (T, 2, 3) (got {seg.shape})")
+    if not np.all(np.isfinite(seg)):
+        raise ValueError("render: trails: values must be finite (got NaN or inf)")
+    h, w = frame.shape[:2]
+    near = 2.0 * NEAR
+    z0 = (seg[:, 0] - camera.position) @ camera.forward
+    z1 = (seg[:, 1] - camera.position) @ camera.forward
+    keep = (z0 > near) | (z1 > near)
+    if not np.any(keep):
+        return
+    p0, p1 = _clip_near(seg[keep, 0], seg[keep, 1], z0[keep], z1[keep], near)
+    steps = np.linspace(0.0, 1.0, TRAIL_PIECES + 1)
+    pts = p0[:, None, :] + (p1 - p0)[:, None, :] * steps[None, :, None]  # (T, P+1, 3)
+    pix, depth = camera.project(pts.reshape(-1, 3))
+    pix = np.clip(np.nan_to_num(pix, nan=-1e6), -1e6, 1e6).reshape(len(p0), TRAIL_PIECES + 1, 2)
+    fixed = np.round(pix * 16.0).astype(np.int32)  # 4 fractional bits (shift=4)
+    lo, hi = pix.min(axis=1), pix.max(axis=1)
+    visible = (hi[:, 0] >= -4) & (lo[:, 0] <= w + 4) & (hi[:, 1] >= -4) & (lo[:, 1] <= h + 4)
+    if not np.any(visible):
+        return
+    head_depth = depth.reshape(len(p0), TRAIL_PIECES + 1)[:, 0]
+    thick = np.clip(np.rint(camera.pixel_scale(head_depth) * TRAIL_WIDTH), 1, 3).astype(int)
+    alpha = np.zeros((h, w), np.uint8)
+    for k in range(TRAIL_PIECES - 1, -1, -1):  # tail first, so brighter pieces overwrite fainter ones
+        value = int(round(255 * TRAIL_ALPHA * (1.0 - k / TRAIL_PIECES)))
+        for th in np.unique(thick[visible]):
+            sel = visible & (thick == th)
+            lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2)
+            cv2.polylines(alpha, list(lines), False, value, int(th), cv2.LINE_AA, 4)
+    rows = np.flatnonzero(alpha.any(axis=1))
+    cols = np.flatnonzero(alpha.any(axis=0))
+    if rows.size == 0:
+        return
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    a = alpha[y0:y1, x0:x1, None].astype(np.float32) / 255.0
+    region = frame[y0:y1, x0:x1].astype(np.float32)
+    color = np.array(TRAIL_COLOR, np.float32)
+    frame[y0:y1, x0:x1] = np.clip(region + (color - region) * a + 0.5, 0, 255).astype(np.uint8)
+
+
+def draw_hud(frame: np.ndarray, lines) -> None:
+    """Write lines of text top-left in frame, in place, white on a translucent dark box."""
+    import cv2
+
+    if isinstance(lines, str) or not all(isinstance(s, str) for s in lines):
+        raise ValueError(f"render: hud_lines: expected a list of str (got {lines!r:.80})")
+    h, w = frame.shape[:2]
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    scale = max(0.35, 0.55 * h / 720.0)
+    thickness = 1 if h < 1000 else 2
+    sizes = [cv2.getTextSize(s, font, scale, thickness) for s in lines]
+    line_h = max(sz[0][1] + sz[1] for sz in sizes) + int(round(6 * scale))
+    pad = int(round(8 * scale))
+    box_w = max(sz[0][0] for sz in sizes) + 2 * pad
+    box_h = line_h * len(lines) + pad
+    x0, y0 = HUD_MARGIN, HUD_MARGIN
+    x1, y1 = min(w, x0 + box_w), min(h, y0 + box_h)
+    region = frame[y0:y1, x0:x1]
+    region[:] = (region.astype(np.uint16) * 90 >> 8).astype(np.uint8)  # ~35% brightness
+    for i, s in enumerate(lines):
+        baseline_y = y0 + pad // 2 + line_h * (i + 1) - sizes[i][1]
+        cv2.putText(frame, s, (x0 + pad, baseline_y), font, scale, (245, 245, 245), thickness, cv2.LINE_AA)

@@ -1,0 +1,449 @@
+"""Taichi kernels of the off-screen renderer: capsules and spheres into a z-buffer, soft ground
+shadows, and one shading pass per pixel.
+
+Why this shape (see also crowd_ik/render.py):
+- Primitives are capsules (segment a-b, radius r); a sphere is a capsule with a == b. A frame has
+  up to ~150,000 of them, each covering a few to a few hundred pixels, so `raster_capsules` is
+  parallel over primitives: each projects its capsule to an exact, conservative screen box (the
+  box of its two end spheres), clipped to the screen, and loops over the pixel centres inside,
+  intersecting the pixel's ray with the capsule exactly. A per-pixel loop over all primitives
+  would need a spatial index; a per-primitive loop needs none and its cost follows covered area.
+- The z-buffer is one int64 key per pixel, (float32 bits of the view depth << 32) | primitive id,
+  lowered with `ti.atomic_min`. Positive float32 values order like their bit patterns, so the
+  smallest key is the nearest hit, and equal depths go to the lower id: the result is the same
+  bit for bit whatever the thread count or schedule (no float atomics anywhere).
+- A capsule's radius is inflated to at least `MIN_PIXEL_RADIUS` pixels at its far end, so any
+  primitive in view covers at least one pixel centre (a disc of radius sqrt(2)/2 always does)
+  and thin far limbs draw as unbroken lines instead of dotted ones.
+- Shadows come from a light straight overhead: `splat_shadows` is parallel over primitives too;
+  each covers the screen box of its ground footprint and raises an integer darkness buffer with
+  `ti.atomic_max` (deterministic again). The footprint is the capsule's vertical projection; its
+  edge softens and its darkness fades with height.
+- `shade_frame` is parallel over pixels: the winning primitive id and depth give the hit point
+  and normal (Lambert + hemisphere ambient + rim + a little specular, darkened near the ground);
+  pixels without a hit see the ground plane y = 0 (anti-aliased 1 m grid, shadows, distance fog)
+  or the sky gradient. The ground also hides the parts of capsules below y = 0.
+
+Camera, packed in a (16,) float32 array `cam` (see `crowd_ik.render.Camera.packed`):
+eye [0:3], right [3:6], up [6:9], forward [9:12] (orthonormal, world frame), focal length in
+pixels [12], principal point cx [13], cy [14], near plane depth [15]. Pixel (px, py) centres sit
+at integer coordinates, x right, y down; their ray is forward*focal + right*(px-cx) - up*(py-cy).
+
+Arrays: P primitives (only the first n are drawn), H x W pixels.
+  pa, pb: (P, 3) float32 end points, metres, world frame; radius: (P,) float32 metres;
+  color: (P, 3) float32 0..1, BGR; keys: (H, W) int64; shadow: (H, W) int32 (0..SHADOW_SCALE);
+  frame: (H, W, 3) uint8 BGR, row 0 at the top.
+The NumPy twin is crowd_ik/reference/raster.py; it imports the constants below.
+"""
+
+import math
+
+import taichi as ti
+
+ndarray = ti.types.ndarray
+
+# --- look of the frame (shared with the NumPy twin). Colours are BGR, 0..1. ---
+_L = (0.45, 0.80, 0.35)  # light direction (x, y, z), towards the light
+_LN = math.sqrt(sum(c * c for c in _L))
+LIGHT_X, LIGHT_Y, LIGHT_Z = (c / _LN for c in _L)
+SKY_HORIZON = (0.93, 0.90, 0.86)
+SKY_ZENITH = (0.86, 0.62, 0.42)
+GROUND = (0.58, 0.63, 0.66)
+GRID_WIDTH = 0.035  # metres, lines every metre
+GRID_DARK = 0.16  # a fully covered grid pixel is this much darker
+FOG_DISTANCE = 350.0  # metres: fog = 1 - exp(-(distance / FOG_DISTANCE)^2)
+AMBIENT = 0.36
+AMBIENT_SKY = 0.14  # hemisphere term: ambient + AMBIENT_SKY * n.y
+DIFFUSE = 0.72
+RIM = 0.28
+RIM_POWER = 3.0
+SPECULAR = 0.18
+SHININESS = 24.0
+AO_MIN = 0.55  # capsule brightness factor at y = 0, rising to 1 at AO_HEIGHT
+AO_HEIGHT = 0.6
+SHADOW_DARK = 0.6  # darkness of a shadow cast from height 0
+SHADOW_FALLOFF = 2.5  # metres: darkness *= exp(-height / SHADOW_FALLOFF)
+SHADOW_SOFT0 = 0.05  # half-width of the soft edge at height 0, metres
+SHADOW_SOFT_K = 0.35  # ... growing by this much per metre of height
+SHADOW_HEIGHT_WEIGHT = 0.3  # height counts this much against ground distance when picking the casting point
+SHADOW_MAX_HEIGHT = 12.0  # primitives wholly above this cast no shadow
+SHADOW_SCALE = 65535  # shadow buffer units per unit darkness
+MIN_PIXEL_RADIUS = 0.72  # pixels; > sqrt(2)/2 so every primitive in view covers a pixel centre
+EMPTY_ID = 0x7FFFFFFF  # id field of an empty key
+BIG = 1.0e30
+_CORNER_X = (0.0, 1.0, 1.0, 0.0)  # the footprint rectangle's corners in order around it
+_CORNER_Z = (0.0, 0.0, 1.0, 1.0)
+
+
+@ti.func
+def cam_vec(cam: ti.template(), k):
+    return ti.Vector([cam[k], cam[k + 1], cam[k + 2]])
+
+
+@ti.func
+def row3(arr: ti.template(), i):
+    return ti.Vector([arr[i, 0], arr[i, 1], arr[i, 2]])
+
+
+@ti.func
+def pixel_ray(cam: ti.template(), px, py):
+    """Unit world direction of the ray through pixel centre (px, py)."""
+    d = (
+        cam_vec(cam, 9) * cam[12]
+        + cam_vec(cam, 3) * (ti.cast(px, ti.f32) - cam[13])
+        - cam_vec(cam, 6) * (ti.cast(py, ti.f32) - cam[14])
+    )
+    return d.normalized()
+
+
+@ti.func
+def effective_radius(za, zb, r, focal):
+    """Radius inflated to MIN_PIXEL_RADIUS pixels at the farther end's view depth."""
+    return ti.max(r, MIN_PIXEL_RADIUS * ti.max(ti.max(za, zb), 0.0) / focal)
+
+
+@ti.func
+def empty_key():
+    return (ti.cast(0x7F800000, ti.i64) << 32) | ti.cast(EMPTY_ID, ti.i64)
+
+
+@ti.func
+def sphere_entry(rd, oc, rr):
+    """Entry parameter of the ray o + t rd into a sphere, oc = o - centre; BIG when it misses."""
+    b = rd.dot(oc)
+    h = b * b - (oc.dot(oc) - rr)
+    t = BIG
+    if h >= 0.0:
+        t = -b - ti.sqrt(h)
+    return t
+
+
+@ti.func
+def capsule_hit(rd, pa, pb, r):
+    """Distance along the unit ray from the eye (the origin) to where it enters the capsule pa-pb
+    of radius r (eye-relative coordinates); -1 when it misses or enters behind the eye.
+
+    The capsule is the union of a finite cylinder's side and two end spheres, so its entry point is
+    the nearest entry among the three. The ray origin is first moved to the ray's closest approach
+    to the capsule's centre (t0): the quadratics then work with lengths of the capsule's size, not
+    of the eye distance, and keep their precision in float32 a hundred metres away.
+    """
+    ba = pb - pa
+    t0 = 0.5 * (pa + pb).dot(rd)
+    oa = rd * t0 - pa
+    ob = rd * t0 - pb
+    rr = r * r
+    baba = ba.dot(ba)
+    bard = ba.dot(rd)
+    baoa = ba.dot(oa)
+    best = BIG
+    k2 = baba - bard * bard
+    if k2 > 1e-6 * baba:
+        k1 = baba * rd.dot(oa) - baoa * bard
+        k0 = baba * oa.dot(oa) - baoa * baoa - rr * baba
+        h = k1 * k1 - k2 * k0
+        if h >= 0.0:
+            t = (-k1 - ti.sqrt(h)) / k2
+            y = baoa + t * bard
+            if y > 0.0 and y < baba and t0 + t > 0.0:
+                best = t
+    ta = sphere_entry(rd, oa, rr)
+    if ta < best and t0 + ta > 0.0:
+        best = ta
+    tb = sphere_entry(rd, ob, rr)
+    if tb < best and t0 + tb > 0.0:
+        best = tb
+    result = -1.0
+    if best < BIG:
+        result = t0 + best
+    return result
+
+
+@ti.func
+def capsule_normal(p, pa, pb):
+    """Unit outward normal at surface point p of the capsule pa-pb (any common origin)."""
+    ba = pb - pa
+    baba = ba.dot(ba)
+    h = 0.0
+    if baba > 1e-20:
+        h = ti.math.clamp((p - pa).dot(ba) / baba, 0.0, 1.0)
+    return (p - pa - ba * h).normalized()
+
+
+@ti.func
+def sphere_bounds(x, z, r):
+    """Range (lo, hi) of X/Z over the ball of radius r around (x, z), Z > 0 throughout (z > r)."""
+    hi = (x + r) / (z + r)
+    if x + r >= 0.0:
+        hi = (x + r) / (z - r)
+    lo = (x - r) / (z + r)
+    if x - r <= 0.0:
+        lo = (x - r) / (z - r)
+    return ti.Vector([lo, hi])
+
+
+@ti.func
+def pixel_range(lo, hi, size):
+    """Integer pixel centres [i0, i1] inside the screen interval [lo, hi], clipped to [0, size-1]."""
+    a = ti.math.clamp(lo - 0.01, -1.0, ti.cast(size, ti.f32))
+    b = ti.math.clamp(hi + 0.01, -1.0, ti.cast(size, ti.f32))
+    i0 = ti.max(ti.cast(ti.ceil(a), ti.i32), 0)
+    i1 = ti.min(ti.cast(ti.floor(b), ti.i32), size - 1)
+    return ti.Vector([i0, i1])
+
+
+@ti.func
+def shadow_soft(h):
+    return SHADOW_SOFT0 + SHADOW_SOFT_K * h
+
+
+@ti.func
+def shadow_value(gx, gz, a, b, r):
+    """Darkness (0..SHADOW_DARK) that the capsule a-b of radius r casts on ground point (gx, 0, gz).
+
+    The casting point is the capsule axis point nearest the ground point, with height weighted by
+    SHADOW_HEIGHT_WEIGHT (so a standing leg casts from its foot, a level arm from its whole length);
+    its height sets the edge softness and the darkness.
+    """
+    ha = ti.max(a[1], 0.0)
+    hb = ti.max(b[1], 0.0)
+    w = SHADOW_HEIGHT_WEIGHT
+    ex = b[0] - a[0]
+    ey = w * (hb - ha)
+    ez = b[2] - a[2]
+    ee = ex * ex + ey * ey + ez * ez
+    u = 0.0
+    if ee > 1e-12:
+        u = ti.math.clamp(((gx - a[0]) * ex + (-w * ha) * ey + (gz - a[2]) * ez) / ee, 0.0, 1.0)
+    dx = gx - (a[0] + u * ex)
+    dz = gz - (a[2] + u * ez)
+    d = ti.sqrt(dx * dx + dz * dz)
+    h = ha + u * (hb - ha)
+    s = shadow_soft(h)
+    cover = 1.0 - ti.math.smoothstep(r - s, r + s, d)
+    return SHADOW_DARK * ti.exp(-h / SHADOW_FALLOFF) * cover
+
+
+@ti.func
+def ground_hit(eye, rd):
+    """Ray parameter where the eye ray meets the ground y = 0 from above; -1 when it does not."""
+    t = -1.0
+    if eye[1] > 0.0 and rd[1] < -1e-7:
+        t = -eye[1] / rd[1]
+    return t
+
+
+@ti.func
+def line_cover(u, fw):
+    """Fraction of a pixel footprint fw (metres) around u covered by GRID_WIDTH lines at integers."""
+    d = ti.abs(u - ti.floor(u + 0.5))
+    lo = ti.max(d - 0.5 * fw, -0.5 * GRID_WIDTH)
+    hi = ti.min(d + 0.5 * fw, 0.5 * GRID_WIDTH)
+    return ti.max(hi - lo, 0.0) / fw
+
+
+@ti.func
+def fog(col, dist):
+    f = 1.0 - ti.exp(-(dist / FOG_DISTANCE) * (dist / FOG_DISTANCE))
+    horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
+    return col + (horizon - col) * f
+
+
+@ti.kernel
+def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.i32, ndim=2)):
+    """keys := empty (no hit, infinite depth); shadow := 0."""
+    for py, px in ti.ndrange(keys.shape[0], keys.shape[1]):
+        keys[py, px] = empty_key()
+        shadow[py, px] = 0
+
+
+@ti.kernel
+def raster_capsules(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    radius: ndarray(dtype=ti.f32, ndim=1),
+    n: ti.i32,
+    keys: ndarray(dtype=ti.i64, ndim=2),
+):
+    """Lower keys[py, px] to (depth bits << 32 | i) for every primitive i < n whose capsule the
+    pixel's ray enters at view depth >= near. keys must be cleared first."""
+    height = keys.shape[0]
+    width = keys.shape[1]
+    for i in range(n):
+        eye = cam_vec(cam, 0)
+        right = cam_vec(cam, 3)
+        up = cam_vec(cam, 6)
+        fwd = cam_vec(cam, 9)
+        focal = cam[12]
+        near = cam[15]
+        a = row3(pa, i) - eye
+        b = row3(pb, i) - eye
+        za = a.dot(fwd)
+        zb = b.dot(fwd)
+        r = effective_radius(za, zb, radius[i], focal)
+        if ti.max(za, zb) + r >= near:
+            xr = ti.Vector([0, width - 1])
+            yr = ti.Vector([0, height - 1])
+            if ti.min(za, zb) - r > near:
+                bxa = sphere_bounds(a.dot(right), za, r)
+                bxb = sphere_bounds(b.dot(right), zb, r)
+                bya = sphere_bounds(a.dot(up), za, r)
+                byb = sphere_bounds(b.dot(up), zb, r)
+                xr = pixel_range(cam[13] + focal * ti.min(bxa[0], bxb[0]), cam[13] + focal * ti.max(bxa[1], bxb[1]), width)
+                yr = pixel_range(cam[14] - focal * ti.max(bya[1], byb[1]), cam[14] - focal * ti.min(bya[0], byb[0]), height)
+            # else: the capsule crosses the near plane; test every pixel of the screen.
+            for py in range(yr[0], yr[1] + 1):
+                for px in range(xr[0], xr[1] + 1):
+                    rd = pixel_ray(cam, px, py)
+                    t = capsule_hit(rd, a, b, r)
+                    if t > 0.0:
+                        z = ti.cast(t * rd.dot(fwd), ti.f32)
+                        if z >= near:
+                            key = (ti.cast(ti.bit_cast(z, ti.i32), ti.i64) << 32) | ti.cast(i, ti.i64)
+                            ti.atomic_min(keys[py, px], key)
+
+
+@ti.func
+def project_ground(p, eye, right, up, fwd, focal, cx, cy):
+    q = p - eye
+    z = q.dot(fwd)
+    return ti.Vector([cx + focal * q.dot(right) / z, cy - focal * q.dot(up) / z])
+
+
+@ti.kernel
+def splat_shadows(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    radius: ndarray(dtype=ti.f32, ndim=1),
+    n: ti.i32,
+    shadow: ndarray(dtype=ti.i32, ndim=2),
+):
+    """Raise shadow[py, px] to round(SHADOW_SCALE * shadow_value) of every primitive i < n at the
+    ground point seen through the pixel. shadow must be cleared first."""
+    height = shadow.shape[0]
+    width = shadow.shape[1]
+    for i in range(n):
+        eye = cam_vec(cam, 0)
+        right = cam_vec(cam, 3)
+        up = cam_vec(cam, 6)
+        fwd = cam_vec(cam, 9)
+        focal = cam[12]
+        cx = cam[13]
+        cy = cam[14]
+        near = cam[15]
+        a = row3(pa, i)
+        b = row3(pb, i)
+        r = radius[i]
+        ha = ti.max(a[1], 0.0)
+        hb = ti.max(b[1], 0.0)
+        if eye[1] > 0.0 and ti.min(ha, hb) < SHADOW_MAX_HEIGHT:
+            reach = r + shadow_soft(ti.max(ha, hb))
+            x_lo = ti.min(a[0], b[0]) - reach
+            x_hi = ti.max(a[0], b[0]) + reach
+            z_lo = ti.min(a[2], b[2]) - reach
+            z_hi = ti.max(a[2], b[2]) + reach
+            # Screen box of the footprint rectangle, clipped to the near plane (polygon clipping:
+            # the kept corners plus the edges' crossings of the plane).
+            s_lo = ti.Vector([BIG, BIG])
+            s_hi = ti.Vector([-BIG, -BIG])
+            for k in ti.static(range(4)):
+                p = ti.Vector([x_lo + (x_hi - x_lo) * _CORNER_X[k], 0.0, z_lo + (z_hi - z_lo) * _CORNER_Z[k]])
+                q = ti.Vector([x_lo + (x_hi - x_lo) * _CORNER_X[(k + 1) % 4], 0.0, z_lo + (z_hi - z_lo) * _CORNER_Z[(k + 1) % 4]])
+                zp = (p - eye).dot(fwd) - near
+                zq = (q - eye).dot(fwd) - near
+                if zp >= 0.0:
+                    s = project_ground(p, eye, right, up, fwd, focal, cx, cy)
+                    s_lo = ti.min(s_lo, s)
+                    s_hi = ti.max(s_hi, s)
+                if zp * zq < 0.0:
+                    c = p + (q - p) * (zp / (zp - zq))
+                    s = project_ground(c, eye, right, up, fwd, focal, cx, cy)
+                    s_lo = ti.min(s_lo, s)
+                    s_hi = ti.max(s_hi, s)
+            if s_lo[0] <= s_hi[0]:
+                xr = pixel_range(s_lo[0] - 1.0, s_hi[0] + 1.0, width)
+                yr = pixel_range(s_lo[1] - 1.0, s_hi[1] + 1.0, height)
+                for py in range(yr[0], yr[1] + 1):
+                    for px in range(xr[0], xr[1] + 1):
+                        rd = pixel_ray(cam, px, py)
+                        tg = ground_hit(eye, rd)
+                        if tg > 0.0:
+                            g = eye + rd * tg
+                            v = shadow_value(g[0], g[2], a, b, r)
+                            level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
+                            if level > 0:
+                                ti.atomic_max(shadow[py, px], level)
+
+
+@ti.func
+def shade_capsule(base, n, rd, y):
+    """Colour of a capsule surface point: base colour, unit normal n, view ray rd, height y."""
+    light = ti.Vector([LIGHT_X, LIGHT_Y, LIGHT_Z])
+    diffuse = ti.max(n.dot(light), 0.0)
+    ambient = AMBIENT + AMBIENT_SKY * n[1]
+    facing = ti.max(-n.dot(rd), 0.0)
+    rim = RIM * ti.pow(1.0 - facing, RIM_POWER)
+    half = (light - rd).normalized()
+    spec = SPECULAR * ti.pow(ti.max(n.dot(half), 0.0), SHININESS)
+    ao = AO_MIN + (1.0 - AO_MIN) * ti.math.clamp(y / AO_HEIGHT, 0.0, 1.0)
+    return base * ((ambient + DIFFUSE * diffuse) * ao) + (rim + spec)
+
+
+@ti.func
+def sky(rd):
+    horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
+    zenith = ti.Vector([SKY_ZENITH[0], SKY_ZENITH[1], SKY_ZENITH[2]])
+    return horizon + (zenith - horizon) * ti.sqrt(ti.math.clamp(rd[1], 0.0, 1.0))
+
+
+@ti.kernel
+def shade_frame(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    color: ndarray(dtype=ti.f32, ndim=2),
+    keys: ndarray(dtype=ti.i64, ndim=2),
+    shadow: ndarray(dtype=ti.i32, ndim=2),
+    frame: ndarray(dtype=ti.u8, ndim=3),
+):
+    """frame (H, W, 3) uint8 BGR from the z-buffer keys and the shadow buffer."""
+    for py, px in ti.ndrange(keys.shape[0], keys.shape[1]):
+        eye = cam_vec(cam, 0)
+        fwd = cam_vec(cam, 9)
+        rd = pixel_ray(cam, px, py)
+        col = sky(rd)
+        tg = ground_hit(eye, rd)
+        key = keys[py, px]
+        pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
+        drawn = False
+        if pid != EMPTY_ID:
+            z = ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
+            t = z / rd.dot(fwd)
+            if tg < 0.0 or t < tg:
+                a = row3(pa, pid) - eye
+                b = row3(pb, pid) - eye
+                nrm = capsule_normal(rd * t, a, b)
+                col = fog(shade_capsule(row3(color, pid), nrm, rd, eye[1] + rd[1] * t), t)
+                drawn = True
+        if not drawn and tg > 0.0:
+            g = eye + rd * tg
+            # Pixel footprint on the ground from the neighbouring pixels' rays (for grid anti-aliasing).
+            fwx = 1.0e3
+            fwz = 1.0e3
+            rx = pixel_ray(cam, px + 1, py)
+            ry = pixel_ray(cam, px, py + 1)
+            tx = ground_hit(eye, rx)
+            ty = ground_hit(eye, ry)
+            if tx > 0.0 and ty > 0.0:
+                gx = eye + rx * tx
+                gy = eye + ry * ty
+                fwx = ti.max(ti.max(ti.abs(gx[0] - g[0]), ti.abs(gy[0] - g[0])), 1e-4)
+                fwz = ti.max(ti.max(ti.abs(gx[2] - g[2]), ti.abs(gy[2] - g[2])), 1e-4)
+            grid = ti.max(line_cover(g[0], fwx), line_cover(g[2], fwz))
+            dark = ti.cast(shadow[py, px], ti.f32) / SHADOW_SCALE
+            base = ti.Vector([GROUND[0], GROUND[1], GROUND[2]])
+            col = fog(base * ((1.0 - GRID_DARK * grid) * (1.0 - dark)), tg)
+        for c in ti.static(range(3)):
+            frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
