@@ -11,7 +11,7 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 import taichi as ti
 
 from crowd_ik.kernels.quat import (
-    constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, yaw_quat, vec3, vec4,
+    align_axis, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, yaw_quat, vec3, vec4,
 )
 
 ndarray = ti.types.ndarray
@@ -25,6 +25,17 @@ def effector_error(i, eff_joint: ti.template(), targets: ti.template(), weights:
     for e in range(eff_joint.shape[0]):
         if weights[i, e] > 0.0:
             err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
+    return err
+
+
+@ti.func
+def orientation_error(i, eff_joint: ti.template(), eff_axis: ti.template(), weights: ti.template(),
+                      orient: ti.template(), world_rot: ti.template()):
+    """Max over effectors with an orientation target of 1 - cos(angle between its axis and the target)."""
+    err = 0.0
+    for e in range(eff_joint.shape[0]):
+        if weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
+            err = ti.max(err, 1.0 - qrot(world_rot[i, eff_joint[e]], eff_axis[e]).dot(orient[i, e]))
     return err
 
 
@@ -188,9 +199,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             # an orientation target on this joint's effector overrides the swing of its local axis
             for e in range(eff_joint.shape[0]):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
-                    cur = qrot(q, eff_axis[e])
-                    want = qrot(inv_base, orient[i, e])
-                    q = qnormalize(qmul(swing(cur, want), q))
+                    q = align_axis(k, axes[j, 0], axes[j, 1], q, eff_axis[e], qrot(inv_base, orient[i, e]))
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
             local_rot[i, j] = q
         world_rot[i, j] = qmul(base_rot, q)
@@ -233,23 +242,27 @@ def fabrik_solve(
     """
     for i in range(root_pos.shape[0]):
         err = effector_error(i, eff_joint, targets, weights, world_pos)
+        turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
         it = 0
         flat = 0
         stop = 0
-        while it < max_iterations and err > tolerance and stop == 0:
+        # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
+        while it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0:
             backward_pass(i, parent, offset, eff_joint, targets, weights, world_pos, work, acc_w)
             forward_pass(i, parent, offset, world_pos, work, acc_w)
             recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
                                   eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos, world_rot, weights,
                                   orient, work, acc_w)
             new_err = effector_error(i, eff_joint, targets, weights, world_pos)
+            new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
             it += 1
-            # stalled: four updates in a row that improved the error by less than 0.01 %
-            if new_err > err * (1.0 - 1e-4):
+            # stalled: four updates in a row that improved neither error by one part in a million
+            if new_err > err * (1.0 - 1e-6) and new_turn >= turn * (1.0 - 1e-6):
                 flat += 1
             else:
                 flat = 0
             err = new_err
+            turn = new_turn
             if flat >= 4:
                 stop = 1
         error[i] = err

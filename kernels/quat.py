@@ -181,3 +181,32 @@ def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), 
             out = euler_xyz_to_quat(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
                                     ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))
     return out
+
+
+@ti.func
+def best_angle_about(axis, u, v):
+    """Angle about a unit axis that best turns u toward v: atan2(a.(u x v), u.v) on the projections."""
+    up = u - u.dot(axis) * axis
+    vp = v - v.dot(axis) * axis
+    return ti.atan2(axis.dot(ti.math.cross(up, vp)), up.dot(vp))
+
+
+@ti.func
+def align_axis(kind, ax0, ax1, q, u, t):
+    """Turn a joint's local rotation q so that its local direction u points along t (both in the parent frame).
+
+    Ball: the minimal swing. Hinge: the best angle about its axis. Universal: alternating best angles
+    about its two axes (block coordinate descent; exact for each axis, converges in a few rounds).
+    """
+    out = q
+    if kind == 3:
+        out = qnormalize(qmul(swing(qrot(q, u).normalized(), t), q))
+    elif kind == 1:
+        out = qnormalize(qmul(axis_angle(ax0, best_angle_about(ax0, qrot(q, u), t)), q))
+    elif kind == 2:
+        a = joint_angles(kind, ax0, ax1, q)
+        for _ in range(4):
+            a.x = best_angle_about(ax0, qrot(axis_angle(ax1, a.y), u), t)
+            a.y = best_angle_about(ax1, u, qrot(axis_angle(ax0, -a.x), t))
+        out = joint_quat(kind, ax0, ax1, a.x, a.y, 0.0)
+    return out

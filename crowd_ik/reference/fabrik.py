@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.reference.quat import (
-    axis_angle, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing,
+    align_axis, axis_angle, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing,
 )
 from crowd_ik.reference.fk import yaw_quat
 from crowd_ik.rig import Rig
@@ -19,6 +19,13 @@ from crowd_ik.rig import Rig
 def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
     d = np.linalg.norm(pos[:, rig.arrays["eff_joint"]] - targets, axis=-1)
     return np.max(np.where(weights > 0, d, 0.0), axis=1)
+
+
+def _turn(rig: Rig, wrot: np.ndarray, weights: np.ndarray, orient: np.ndarray) -> np.ndarray:
+    arr = rig.arrays
+    axis = qrot(wrot[:, arr["eff_joint"]], np.broadcast_to(arr["eff_axis"].astype(np.float64), orient.shape))
+    has = (weights > 0) & (np.sum(orient * orient, -1) > 0)
+    return np.max(np.where(has, 1.0 - np.sum(axis * orient, -1), 0.0), axis=1)
 
 
 def _passes(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray):
@@ -157,9 +164,9 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
                 if eff.joint != j:
                     continue
                 has = (weights[:, e] > 0) & (np.sum(orient[:, e] ** 2, -1) > 0)
-                cur = qrot(q, np.broadcast_to(arr["eff_axis"][e].astype(np.float64), (N, 3)))
-                want = qrot(inv_base, orient[:, e])
-                q = np.where(has[:, None], qnormalize(qmul(swing(cur, want), q)), q)
+                aligned = align_axis(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
+                                     arr["eff_axis"][e].astype(np.float64), qrot(inv_base, orient[:, e]))
+                q = np.where(has[:, None], aligned, q)
             s = rig.dof_start[j]
             q = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                    lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
@@ -184,11 +191,12 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
     q_root = yaw_quat(root_yaw)
     pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
     err = _error(rig, pos, targets, weights)
+    turn = _turn(rig, wrot, weights, orient)
     iters = np.zeros(N, np.int32)
     flat = np.zeros(N, np.int32)
     stalled = np.zeros(N, bool)
     for _ in range(max_iterations):
-        live = (err > tolerance) & ~stalled
+        live = ((err > tolerance) | (turn > 1e-6)) & ~stalled
         if not np.any(live):
             break
         idx = np.nonzero(live)[0]
@@ -197,8 +205,11 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
         _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx])
         rot[idx], pos[idx], wrot[idx] = r, p, w
         new_err = _error(rig, p, targets[idx], weights[idx])
+        new_turn = _turn(rig, w, weights[idx], orient[idx])
         iters[idx] += 1
-        flat[idx] = np.where(new_err > err[idx] * (1 - 1e-4), flat[idx] + 1, 0)
+        flat_now = (new_err > err[idx] * (1 - 1e-6)) & (new_turn >= turn[idx] * (1 - 1e-6))
+        flat[idx] = np.where(flat_now, flat[idx] + 1, 0)
         err[idx] = new_err
+        turn[idx] = new_turn
         stalled[idx] = flat[idx] >= 4
     return rot, pos, err, iters, stalled

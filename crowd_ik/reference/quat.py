@@ -127,3 +127,27 @@ def constrain_rotation(kind: int, axes: np.ndarray, q: np.ndarray, lo: np.ndarra
     if np.any(lo > -1e29) or np.any(hi < 1e29):
         out = euler_xyz_to_quat(np.clip(quat_to_euler_xyz(out), lo, hi))
     return out
+
+
+def best_angle_about(axis: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    up = u - np.sum(u * axis, -1, keepdims=True) * axis
+    vp = v - np.sum(v * axis, -1, keepdims=True) * axis
+    return np.arctan2(np.sum(axis * np.cross(up, vp), -1), np.sum(up * vp, -1))
+
+
+def align_axis(kind: int, axes: np.ndarray, q: np.ndarray, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Twin of quat.align_axis over (N, 4) rotations; u (3,) local direction, t (N, 3) target in the parent frame."""
+    u = np.broadcast_to(u, q.shape[:-1] + (3,))
+    if kind == 3:
+        cur = qrot(q, u)
+        return qnormalize(qmul(swing(cur / np.linalg.norm(cur, axis=-1, keepdims=True), t), q))
+    if kind == 1:
+        return qnormalize(qmul(axis_angle(axes[0], best_angle_about(axes[0], qrot(q, u), t)), q))
+    if kind == 2:
+        a = joint_angles(2, axes, q)
+        for _ in range(4):
+            a0 = best_angle_about(axes[0], qrot(axis_angle(axes[1], a[..., 1]), u), t)
+            a1 = best_angle_about(axes[1], u, qrot(axis_angle(axes[0], -a0), t))
+            a = np.stack([a0, a1], -1)
+        return joint_quat(2, axes, a)
+    return q

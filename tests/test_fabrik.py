@@ -1,0 +1,241 @@
+"""Batched FABRIK: convergence, exact bone lengths, limits, sub-bases, unreachable targets, batch == single, twin."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st, HealthCheck
+
+import crowd_ik as cik
+from crowd_ik.crowd import Status
+from crowd_ik.reference.fabrik import fabrik_solve
+
+
+def ball_targets(n, radius, dim, seed):
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, dim))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return (d * radius * rng.uniform(0, 1, (n, 1)) ** (1 / dim)).astype(np.float32)
+
+
+def bone_lengths(crowd):
+    rig = crowd.rig
+    pos = crowd.joint_positions()
+    parents = np.array([j.parent for j in rig.joints[1:]])
+    return np.linalg.norm(pos[:, 1:] - pos[:, parents], axis=-1), rig.bone_lengths[1:]
+
+
+@pytest.mark.parametrize("dim", [3, 2])
+def test_chain16_reaches_99_percent_of_reachable_targets(dim):
+    rig = cik.Rig.chain(16, 0.1, dim=dim)
+    n = 1000
+    crowd = cik.Crowd(rig, n=n, spacing=0.0)
+    targets = ball_targets(n, 0.9 * 1.6, dim, seed=dim)
+    rep = crowd.solve(targets[:, None], method="fabrik", max_iterations=50, tolerance=1e-3)
+    assert np.mean(rep.error <= 1e-3) >= 0.99
+    assert np.all(rep.status[rep.error <= 1e-3] == Status.CONVERGED)
+    assert np.all(rep.iterations <= 50) and rep.iterations.dtype == np.int32 and rep.status.dtype == np.int8
+    got, want = bone_lengths(crowd)
+    np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), atol=2e-6)
+    # the report's error is the distance of the final pose's effector
+    np.testing.assert_allclose(rep.error, np.linalg.norm(crowd.effector_positions()[:, 0] - targets, axis=1), atol=1e-6)
+
+
+def test_unreachable_targets_end_stretched_toward_the_target():
+    rig = cik.Rig.chain(8, 0.25, dim=3)
+    crowd = cik.Crowd(rig, n=50, spacing=0.0)
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(50, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    targets = d * rng.uniform(2.1, 10.0, (50, 1))
+    rep = crowd.solve(targets[:, None].astype(np.float32), max_iterations=30, tolerance=1e-3)
+    assert np.all(rep.status == Status.UNREACHABLE)
+    pos = crowd.joint_positions()
+    bones = np.diff(pos, axis=1)
+    dirs = bones / np.linalg.norm(bones, axis=-1, keepdims=True)
+    assert np.min(np.sum(dirs * d[:, None], axis=-1)) > math.cos(2e-3)  # 2 mrad: float32 directions
+    np.testing.assert_allclose(rep.error, np.linalg.norm(targets, axis=1) - 2.0, atol=1e-5)
+    assert np.median(rep.iterations) < 15  # stretched early, then stopped by the stall counter
+
+
+def test_target_already_reached_needs_no_update():
+    crowd = cik.Crowd(cik.Rig.chain(4, 0.5, dim=3), n=3)
+    rep = crowd.solve(crowd.effector_positions(), tolerance=1e-4)
+    assert np.all(rep.iterations == 0) and np.all(rep.status == Status.CONVERGED)
+
+
+def _reachable_humanoid_targets(rig, n, seed, scale=0.5):
+    rng = np.random.default_rng(seed)
+    lo, hi = rig.angle_limits()
+    a = (rng.uniform(lo, hi, (n, rig.n_dof)) * scale).astype(np.float32)
+    c = cik.Crowd(rig, n=n, spacing=2.0)
+    c.set_angles(a)
+    return c.effector_positions().copy()
+
+
+def test_humanoid_sub_bases_reach_every_effector_without_limits():
+    h = cik.Rig.humanoid()
+    free = cik.Rig(tuple(dataclasses.replace(j, lo=None, hi=None) for j in h.joints), h.effectors)
+    targets = _reachable_humanoid_targets(h, 200, 1)
+    crowd = cik.Crowd(free, n=200, spacing=2.0)
+    rep = crowd.solve(targets, max_iterations=100, tolerance=5e-3)
+    assert np.mean(rep.converged) >= 0.97
+
+
+def test_humanoid_limits_always_hold_and_most_targets_are_reached():
+    h = cik.Rig.humanoid()
+    targets = _reachable_humanoid_targets(h, 300, 2)
+    crowd = cik.Crowd(h, n=300, spacing=2.0)
+    lo, hi = h.angle_limits()
+    for iterations in (1, 5, 100):
+        crowd.set_angles(np.zeros(h.n_dof))
+        rep = crowd.solve(targets, max_iterations=iterations, tolerance=5e-3)
+        a = crowd.angles()
+        assert np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)
+    assert np.mean(rep.converged) >= 0.5
+    # one effector at a time is easy for a limited humanoid too
+    crowd.set_angles(np.zeros(h.n_dof))
+    rep = crowd.solve(targets, weights=[0, 1, 0, 0, 0], max_iterations=100, tolerance=5e-3)
+    assert np.mean(rep.converged) >= 0.9
+
+
+def test_orientation_target_turns_the_sole_flat():
+    h = cik.Rig.humanoid()
+    crowd = cik.Crowd(h, n=20, spacing=2.0)
+    rng = np.random.default_rng(4)
+    lo, hi = h.angle_limits()
+    crowd.set_angles((rng.uniform(lo, hi, (20, h.n_dof)) * 0.1).astype(np.float32))  # within the ankle's reach
+    targets = crowd.effector_positions().copy()
+    orient = np.zeros((20, 5, 3), np.float32)
+    orient[:, 3] = (0, 1, 0)
+    crowd.solve(targets, weights=[0, 0, 0, 1, 0], orientations=orient, max_iterations=10, tolerance=1e-6)
+    ankle = h.arrays["eff_joint"][3]
+    from crowd_ik.reference.quat import qrot
+    up = qrot(crowd.world_rotations()[:, ankle].astype(np.float64), np.array([0.0, 1.0, 0.0]))
+    assert np.all(up[:, 1] > math.cos(math.radians(2)))
+
+
+def test_batch_equals_one_at_a_time_wherever_characters_stand():
+    h = cik.Rig.humanoid()
+    n = 40
+    rng = np.random.default_rng(9)
+    roots = rng.normal(size=(n, 3)).astype(np.float32) * 20
+    roots[:, 1] = 0
+    yaw = rng.uniform(-3, 3, n).astype(np.float32)
+    local = _reachable_humanoid_targets(h, n, 3) - cik.Crowd(h, n=n, spacing=2.0).joint_positions()[:, :1, :] * [1, 0, 1]
+    batch = cik.Crowd(h, n=n)
+    batch.set_roots(roots, yaw)
+    # express the targets around each character: rotate by its yaw and move to its root
+    c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.stack([np.stack([c, 0 * c, s], -1), np.tile([0, 1, 0], (n, 1)), np.stack([-s, 0 * c, c], -1)], 1)
+    targets = (np.einsum("nij,nej->nei", rot, local) + roots[:, None]).astype(np.float32)
+    rep = batch.solve(targets, max_iterations=30, tolerance=1e-3)
+    one = cik.Crowd(h, n=1)
+    for i in range(0, n, 7):
+        one.set_roots(roots[i : i + 1], yaw[i : i + 1])
+        one.set_angles(np.zeros(h.n_dof))
+        r1 = one.solve(targets[i : i + 1], max_iterations=30, tolerance=1e-3)
+        assert r1.iterations[0] == rep.iterations[i]
+        np.testing.assert_allclose(one.joint_positions()[0] - roots[i], batch.joint_positions()[i] - roots[i], atol=1e-5)
+
+
+def test_kernel_matches_numpy_twin():
+    for rig in (cik.Rig.chain(6, 0.3, dim=3, lo=-0.8, hi=0.8), cik.Rig.humanoid()):
+        n = 32
+        rng = np.random.default_rng(12)
+        crowd = cik.Crowd(rig, n=n, spacing=2.0)
+        lo, hi = np.clip(rig.angle_limits()[0], -1, 1), np.clip(rig.angle_limits()[1], -1, 1)
+        crowd.set_angles((rng.uniform(lo, hi, (n, rig.n_dof)) * 0.5).astype(np.float32))
+        targets = crowd.effector_positions() + rng.normal(size=(n, rig.n_effectors, 3)).astype(np.float32) * 0.05
+        crowd.set_angles((rng.uniform(lo, hi, (n, rig.n_dof)) * 0.2).astype(np.float32))
+        rot0 = crowd.rotations()
+        roots, yaw = crowd.roots()
+        rep = crowd.solve(targets, max_iterations=3, tolerance=1e-3)
+        rot, pos, err, iters, _ = fabrik_solve(rig, roots, yaw, rot0, targets, max_iterations=3, tolerance=1e-3)
+        np.testing.assert_array_equal(iters, rep.iterations)
+        np.testing.assert_allclose(crowd.joint_positions(), pos, atol=2e-4)
+        np.testing.assert_allclose(rep.error, err, atol=2e-4)
+
+
+def test_2d_crowd_solution_is_a_planar_chain_pose():
+    planar = pytest.importorskip("crowd_ik.planar")
+    rig = cik.Rig.chain(4, dim=2)
+    crowd = cik.Crowd(rig, n=100, spacing=0.0)
+    targets = ball_targets(100, 3.6, 2, seed=8)
+    rep = crowd.solve(targets[:, None], max_iterations=100, tolerance=1e-4)
+    a = crowd.angles().astype(np.float64)
+    for i in range(0, 100, 9):
+        np.testing.assert_allclose(planar.chain(a[i]), crowd.effector_positions()[i, 0], atol=2e-5)
+    assert np.mean(rep.converged) >= 0.98
+
+
+def test_solve_is_deterministic_bitwise():
+    rig = cik.Rig.chain(16, 0.1, dim=3)
+    targets = ball_targets(500, 1.4, 3, seed=1)[:, None]
+    out = []
+    for _ in range(2):
+        crowd = cik.Crowd(rig, n=500, spacing=0.0)
+        crowd.solve(targets, max_iterations=20)
+        out.append(crowd.rotations())
+    assert np.array_equal(out[0], out[1])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(method="newton"), "method"),
+    (dict(max_iterations=0), "max_iterations"),
+    (dict(max_iterations=2.5), "max_iterations"),
+    (dict(tolerance=0.0), "tolerance"),
+    (dict(tolerance=-1.0), "tolerance"),
+    (dict(weights=[-1.0]), "weights"),
+    (dict(weights=[0.0]), "weights"),
+    (dict(rest_weight=-1.0), "rest_weight"),
+    (dict(orientations=np.full((2, 1, 3), np.nan)), "orientations"),
+])
+def test_bad_arguments_raise_naming_the_argument(kwargs, match):
+    crowd = cik.Crowd(cik.Rig.chain(3, dim=3), n=2)
+    with pytest.raises(ValueError, match=match):
+        crowd.solve(np.zeros((2, 1, 3), np.float32), **kwargs)
+
+
+@pytest.mark.parametrize("targets, match", [
+    (np.full((2, 1, 3), np.nan), "finite"), (np.full((2, 1, 3), np.inf), "finite"), (np.zeros((2, 2, 3)), "shape"),
+    (np.zeros((3, 1, 3)), "shape"),
+])
+def test_bad_targets_raise(targets, match):
+    crowd = cik.Crowd(cik.Rig.chain(3, dim=3), n=2)
+    with pytest.raises(ValueError, match=f"targets.*{match}|{match}"):
+        crowd.solve(targets)
+
+
+@st.composite
+def random_rigs(draw):
+    n_bones = draw(st.integers(1, 12))
+    dim = draw(st.sampled_from([2, 3]))
+    length = draw(st.floats(0.05, 2.0))
+    limited = draw(st.booleans())
+    lim = draw(st.floats(0.1, 3.0)) if limited else None
+    return cik.Rig.chain(n_bones, length, dim=dim, lo=None if lim is None else -lim, hi=lim)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rig=random_rigs(), seed=st.integers(0, 10_000), where=st.sampled_from(["inside", "root", "far", "surface"]))
+def test_property_never_nan_lengths_and_limits_kept(rig, seed, where):
+    rng = np.random.default_rng(seed)
+    n = 8
+    reach = rig.reach[0]
+    d = rng.normal(size=(n, rig.dim))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    radius = {"inside": rng.uniform(0, reach, (n, 1)), "root": np.zeros((n, 1)), "far": np.full((n, 1), 1e3 * reach),
+              "surface": np.full((n, 1), reach)}[where]
+    crowd = cik.Crowd(rig, n=n, spacing=0.0)
+    rep = crowd.solve((d * radius)[:, None].astype(np.float32), max_iterations=20, tolerance=1e-3 * reach)
+    pos = crowd.joint_positions()
+    assert np.all(np.isfinite(pos)) and np.all(np.isfinite(rep.error))
+    got, want = bone_lengths(crowd)
+    np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-5, atol=1e-6)
+    lo, hi = rig.angle_limits()
+    a = crowd.angles()
+    assert np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)
+    if where == "far":
+        assert np.all(rep.status == Status.UNREACHABLE)
