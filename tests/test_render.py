@@ -1,6 +1,10 @@
 """Camera projection, the Taichi rasteriser against its NumPy twin, z-buffer occlusion, shadows,
 determinism, overlays and input checks of crowd_ik.render."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -17,7 +21,7 @@ def _kernel_buffers(cam, a, b, r, colors=None):
     """Run the four kernels on NumPy arrays: (keys, shadow, frame)."""
     h, w = cam.height, cam.width
     keys = np.zeros((h, w), np.int64)
-    shadow = np.zeros((h, w), np.int32)
+    shadow = np.zeros((h // 2, w // 2), np.int32)
     frame = np.zeros((h, w, 3), np.uint8)
     packed = cam.packed()
     a, b, r = (np.ascontiguousarray(x, np.float32) for x in (a, b, r))
@@ -195,6 +199,57 @@ def test_two_renders_are_bit_identical():
     assert len(np.unique(ids1)) > 200  # a crowded frame, with many overlaps resolved by the z-buffer
 
 
+def _threads_scene():
+    """A crowded 96x64 frame: (frame, ids, shadow) rendered in this process."""
+    g = np.random.default_rng(11)
+    a = g.uniform([-3, 0, -3], [3, 2, 3], (2000, 3))
+    b = a + g.normal(0, 0.3, (2000, 3))
+    rend = Renderer(Camera((0.0, 3.0, 7.0), (0.0, 0.5, 0.0), 50.0, 96, 64), 2000, 0)
+    frame = rend.render(a, b, g.uniform(0.02, 0.2, 2000), g.uniform(0, 1, (2000, 3)))
+    return frame, rend.id_buffer()[0], rend.shadow_buffer()
+
+
+_OTHER_THREADS = """
+import sys, numpy as np, crowd_ik
+crowd_ik.init(arch="cpu", threads=int(sys.argv[3]))
+sys.path.insert(0, sys.argv[2])
+from test_render import _threads_scene
+frame, ids, shadow = _threads_scene()
+np.savez(sys.argv[1], frame=frame, ids=ids, shadow=shadow)
+"""
+
+
+def test_frame_is_the_same_with_another_thread_count(tmp_path):
+    import crowd_ik.runtime
+
+    other = 2 if crowd_ik.runtime.current().get("threads") == 1 else 1  # this process: all cores
+    path = tmp_path / "other.npz"
+    cmd = [sys.executable, "-c", _OTHER_THREADS, str(path), str(Path(__file__).parent), str(other)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    theirs = np.load(path)
+    for key, value in zip(("frame", "ids", "shadow"), _threads_scene()):
+        np.testing.assert_array_equal(theirs[key], value)
+    assert len(np.unique(theirs["ids"])) > 200
+
+
+def test_load_primitives_copies_the_first_n_rows():
+    g = np.random.default_rng(9)
+    src = [g.normal(size=(10, 3)).astype(np.float32), g.normal(size=(10, 3)).astype(np.float32), g.uniform(size=10).astype(np.float32), g.uniform(size=(10, 3)).astype(np.float32)]
+    dst = [np.full((10, 3), -7, np.float32), np.full((10, 3), -7, np.float32), np.full(10, -7, np.float32), np.full((10, 3), -7, np.float32)]
+    kr.load_primitives(*src, 6, *dst)
+    for s_, d_ in zip(src, dst):
+        np.testing.assert_array_equal(d_[:6], s_[:6])
+        assert np.all(d_[6:] == -7)
+
+
+def test_primitives_behind_the_camera_are_culled():
+    cam = _cam(w=64, h=48, pos=(0.0, 1.0, 5.0), look=(0.0, 1.0, 0.0))
+    rend = Renderer(cam, 2, 0)
+    rend.render([[-1.0, 1.0, 7.0], [0.0, 1.0, 5.3]], [[1.0, 1.0, 7.0], [0.0, 1.2, 5.3]], [0.5, 0.2], [1.0, 1.0, 1.0])
+    ids, _ = rend.id_buffer()
+    assert np.all(ids == -1)
+
+
 def test_empty_scene_is_sky_over_ground():
     cam = _cam(w=64, h=48, pos=(0.0, 1.5, 5.0), look=(0.0, 1.5, 0.0))  # level: horizon mid-image
     rend = Renderer(cam, 8, 8)
@@ -206,7 +261,7 @@ def test_empty_scene_is_sky_over_ground():
     top, bottom = frame[0].astype(int), frame[-1].astype(int)
     assert np.all(top[:, 0] > top[:, 2] + 40)  # blue sky (B >> R)
     assert np.all(np.abs(bottom - np.array(kr.GROUND) * 255).max(axis=1) < 50)  # ground colour
-    expect = ref.shade_frame(cam.packed(), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), ids, depth, np.zeros((48, 64), np.int32), 64, 48)
+    expect = ref.shade_frame(cam.packed(), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), ids, depth, np.zeros((24, 32), np.int32), 64, 48)
     assert np.abs(frame.astype(int) - expect).max() <= 2
 
 

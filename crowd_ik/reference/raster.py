@@ -26,11 +26,11 @@ def _normalize(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def pixel_rays(cam, width: int, height: int, dx: float = 0.0, dy: float = 0.0) -> np.ndarray:
-    """(H, W, 3) unit ray directions through the pixel centres (shifted by dx, dy pixels)."""
+def pixel_rays(cam, width: int, height: int, dx: float = 0.0, dy: float = 0.0, step: float = 1.0) -> np.ndarray:
+    """(H, W, 3) unit ray directions through pixel coordinates (step j + dx, step i + dy)."""
     _, right, up, fwd, focal, cx, cy, _ = _camera(cam)
-    px = np.arange(width, dtype=np.float64)[None, :, None] + dx
-    py = np.arange(height, dtype=np.float64)[:, None, None] + dy
+    px = step * np.arange(width, dtype=np.float64)[None, :, None] + dx
+    py = step * np.arange(height, dtype=np.float64)[:, None, None] + dy
     return _normalize(fwd * focal + right * (px - cx) - up * (py - cy))
 
 
@@ -117,12 +117,13 @@ def ground_hit(eye: np.ndarray, rd: np.ndarray) -> np.ndarray:
 
 
 def splat_shadows(cam, pa, pb, radius, width: int, height: int) -> np.ndarray:
-    """(H, W) int32: max over primitives of round(SHADOW_SCALE * darkness) at each pixel's ground point."""
+    """(H/2, W/2) int32: max over primitives of round(SHADOW_SCALE * darkness) at the ground point
+    seen through pixel coordinates (2j + 0.5, 2i + 0.5) (the centre of each 2x2 block)."""
     eye = _camera(cam)[0]
-    rd = pixel_rays(cam, width, height)
+    rd = pixel_rays(cam, width // 2, height // 2, dx=0.5, dy=0.5, step=2.0)
     tg = ground_hit(eye, rd)
     g = eye + rd * tg[..., None]
-    out = np.zeros((height, width), np.int32)
+    out = np.zeros((height // 2, width // 2), np.int32)
     for i in range(len(radius)):
         a, b = np.asarray(pa[i], np.float64), np.asarray(pb[i], np.float64)
         if min(max(a[1], 0.0), max(b[1], 0.0)) >= k.SHADOW_MAX_HEIGHT:
@@ -130,6 +131,21 @@ def splat_shadows(cam, pa, pb, radius, width: int, height: int) -> np.ndarray:
         level = np.floor(shadow_value(g, a, b, float(radius[i])) * k.SHADOW_SCALE + 0.5).astype(np.int32)
         out = np.maximum(out, np.where(tg > 0.0, level, 0))
     return out
+
+
+def sample_shadow(shadow: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) darkness 0..1: the (H/2, W/2) shadow levels sampled bilinearly at every pixel."""
+    h, w = shadow.shape
+    u = np.maximum((np.arange(width) - 0.5) * 0.5, 0.0)
+    v = np.maximum((np.arange(height) - 0.5) * 0.5, 0.0)
+    j0 = np.minimum(u.astype(int), w - 1)
+    i0 = np.minimum(v.astype(int), h - 1)
+    j1, i1 = np.minimum(j0 + 1, w - 1), np.minimum(i0 + 1, h - 1)
+    fu, fv = np.minimum(u - j0, 1.0)[None, :], np.minimum(v - i0, 1.0)[:, None]
+    s = shadow.astype(np.float64)
+    top = s[i0][:, j0] * (1 - fu) + s[i0][:, j1] * fu
+    bottom = s[i1][:, j0] * (1 - fu) + s[i1][:, j1] * fu
+    return (top * (1 - fv) + bottom * fv) / k.SHADOW_SCALE
 
 
 def _line_cover(u: np.ndarray, fw: np.ndarray) -> np.ndarray:
@@ -145,7 +161,8 @@ def _fog(col: np.ndarray, dist: np.ndarray) -> np.ndarray:
 
 
 def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int) -> np.ndarray:
-    """(H, W, 3) uint8 BGR frame from ids/depth (as `raster_capsules` returns) and shadow levels."""
+    """(H, W, 3) uint8 BGR frame from ids/depth (as `raster_capsules` returns) and the (H/2, W/2)
+    shadow levels (as `splat_shadows` returns)."""
     eye, _, _, fwd, _, _, _, _ = _camera(cam)
     rd = pixel_rays(cam, width, height)
     y = np.clip(rd[..., 1], 0.0, 1.0)
@@ -193,7 +210,7 @@ def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int)
         fwx = np.where(both, np.maximum(np.maximum(np.abs(gx[..., 0] - g[..., 0]), np.abs(gy[..., 0] - g[..., 0])), 1e-4), 1e3)
         fwz = np.where(both, np.maximum(np.maximum(np.abs(gx[..., 2] - g[..., 2]), np.abs(gy[..., 2] - g[..., 2])), 1e-4), 1e3)
         grid = np.maximum(_line_cover(g[..., 0], fwx), _line_cover(g[..., 2], fwz))
-        dark = shadow.astype(np.float64) / k.SHADOW_SCALE
+        dark = sample_shadow(shadow, width, height)
         shade = (1.0 - k.GRID_DARK * grid) * (1.0 - dark)
         ground_col = _fog(np.array(k.GROUND) * shade[..., None], tg)
         col[ground] = ground_col[ground]
