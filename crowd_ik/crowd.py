@@ -132,6 +132,7 @@ class Crowd:
         # Solver inputs and outputs, reused by every solve.
         self._targets = ti.ndarray(vec3, shape=(N, E))
         self._orient = ti.ndarray(vec3, shape=(N, E))
+        self._orient_zero = False  # True while self._orient holds zeros (skip re-uploading them)
         self._weights = ti.ndarray(ti.f32, shape=(N, E))
         self._error = ti.ndarray(ti.f32, shape=(N,))
         self._iters = ti.ndarray(ti.i32, shape=(N,))
@@ -166,6 +167,11 @@ class Crowd:
             raise ValueError("yaw: planar (dim=2) characters have no yaw")
         yaw_arr = np.zeros(self.n, np.float32) if yaw is None else _as_array(yaw, "yaw", (self.n,))
         self.root_yaw.from_numpy(yaw_arr)
+        # host copy of the root joints' world positions (they never move in a solve): the UNREACHABLE test
+        off = self.rig.arrays["offset"][0].astype(np.float64)
+        c, s = np.cos(yaw_arr), np.sin(yaw_arr)
+        self._base = (full + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]), -s * off[0] + c * off[2]],
+                                      -1)).astype(np.float32)
         self._fk()
 
     def set_angles(self, a) -> None:
@@ -276,7 +282,7 @@ class Crowd:
             has = norms > 0
             orient = np.where(has[..., None], orient / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
         else:
-            orient = np.zeros((N, E, 3), np.float32)
+            orient = None
         params = dict(
             rest_weight=_non_negative(rest_weight, "rest_weight"),
             velocity_weight=_non_negative(velocity_weight, "velocity_weight"),
@@ -290,7 +296,9 @@ class Crowd:
         full[..., :dim] = tgt
         self._targets.from_numpy(full)
         self._weights.from_numpy(w)
-        self._orient.from_numpy(orient)
+        if orient is not None or not self._orient_zero:
+            self._orient.from_numpy(np.zeros((N, E, 3), np.float32) if orient is None else orient)
+            self._orient_zero = orient is None
         launch = getattr(self, f"_solve_{method}")
         launch(max_iterations, float(tolerance), params)
         return self._report(full, w, float(tolerance), method)
@@ -299,8 +307,7 @@ class Crowd:
         error = self._error.to_numpy()
         iters = self._iters.to_numpy()
         stalled = self._stalled.to_numpy().astype(bool)
-        base = self.world_pos.to_numpy()[:, 0, :]
-        far = np.linalg.norm(targets - base[:, None, :], axis=-1) > self.rig.reach[None, :] * (1 + 1e-6) + 1e-7
+        far = np.linalg.norm(targets - self._base[:, None, :], axis=-1) > self.rig.reach[None, :] * (1 + 1e-6) + 1e-7
         unreachable = np.any(far & (w > 0), axis=1)
         status = np.full(self.n, Status.MAX_ITERATIONS, np.int8)
         status[stalled] = Status.STALLED
@@ -319,6 +326,63 @@ class Crowd:
             ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient, work, acc_w,
+            max_iterations, tolerance, self._error, self._iters, self._stalled,
+        )
+
+    def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:
+        """Damped least squares with LM damping and a joint-limit active set (kernels/dls.py), one launch."""
+        from crowd_ik.kernels import dls
+        from crowd_ik.reference.dls import dls_settings
+
+        ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
+        D, J, R = max(rig.n_dof, 1), rig.n_joints, 5 * rig.n_effectors
+        settings = dls_settings(rig, params["damping"])
+        joint_w = np.zeros(D + 1, np.float32)
+        joint_w[: rig.n_dof] = 1.0 if params["joint_weights"] is None else params["joint_weights"]
+        eff_lim = self.scratch("dls_eff_lim", ti.f32, settings["eff_lim"].shape)
+        eff_lim.from_numpy(settings["eff_lim"])
+        jw = self.scratch("dls_joint_w", ti.f32, (D + 1,))
+        jw.from_numpy(joint_w)
+        dls.dls_solve(
+            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"], eff_lim, jw,
+            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
+            self._targets, self._weights, self._orient,
+            self.scratch("dls_rel_pos", ti.math.vec3, (N, J)), self.scratch("dls_qwork", ti.math.vec4, (N, 2, J)),
+            self.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
+            self.scratch("dls_jac", ti.f32, (N, R, D + 1)), self.scratch("dls_rows", ti.f32, (N, 2, R)),
+            self.scratch("dls_sys", ti.f32, (N, R, R)),
+            max_iterations, tolerance, settings["damping"], settings["length"],
+            params["rest_weight"], params["velocity_weight"], self._error, self._iters, self._stalled,
+        )
+
+    def _solve_ccd(self, max_iterations: int, tolerance: float, params: dict) -> None:
+        """Cyclic coordinate descent (kernels/ccd.py): one sweep per iteration, deepest joint to the root."""
+        from crowd_ik.kernels import ccd
+
+        ra, ti, rig = self.rig_arrays, self._ti, self.rig
+        # per (joint j, effector e): e's joint in j's subtree (j included); bone length from j down to e;
+        # the child of j on that path (-1 if none)
+        J, E = rig.n_joints, rig.n_effectors
+        below_np = np.zeros((J, E), np.int32)
+        length_np = np.zeros((J, E), np.float32)
+        child_np = np.full((J, E), -1, np.int32)
+        for e, eff in enumerate(rig.effectors):
+            path = rig.path_to_root(eff.joint)
+            below_np[path, e] = 1
+            child_np[path[1:], e] = path[:-1]
+            length_np[path, e] = np.cumsum(rig.bone_lengths[path]) - rig.bone_lengths[path]
+        arrays = []
+        for name, dtype, value in (("below", ti.i32, below_np), ("len", ti.f32, length_np), ("child", ti.i32, child_np)):
+            arr = self.scratch(f"ccd_{name}", dtype, (J, E))
+            arr.from_numpy(value)
+            arrays.append(arr)
+        below, chain_len, path_child = arrays
+        ccd.ccd_solve(
+            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, chain_len, path_child,
+            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
+            self._targets, self._weights, self._orient,
             max_iterations, tolerance, self._error, self._iters, self._stalled,
         )
 
