@@ -4,12 +4,18 @@ in Taichi and draws trails and the HUD with OpenCV.
 A frame is an (H, W, 3) uint8 BGR array, row 0 at the top, so the same drawing serves the video
 sinks, PNG stills and the mouse mode. The world is y up, metres, ground plane y = 0.
 
-The heavy part is four kernel launches per frame whatever the number of primitives
-(kernels/raster.py explains the method): clear the buffers, rasterise every capsule and sphere
-into an integer z-buffer (exact ray-capsule hits, `atomic_min` on (depth bits, id) keys, so frames
-are bit-identical across runs and thread counts), splat soft ground shadows, shade every pixel
-(sky gradient, ground grid, shadows, Lambert + ambient + rim capsules). Bullet trails (anti-aliased
-lines fading along their length) and HUD text on a dark box are drawn afterwards with OpenCV.
+The heavy part is five kernel launches per frame whatever the number of primitives
+(kernels/raster.py explains the method): copy this frame's primitives in, clear the buffers,
+rasterise every capsule and sphere into an integer z-buffer (exact ray-capsule hits, `atomic_min`
+on (depth bits, id) keys, so frames are bit-identical across runs and thread counts), splat soft
+ground shadows into a half-resolution buffer, shade every pixel (sky gradient, ground grid,
+shadows, Lambert + ambient + rim capsules). Bullet trails (anti-aliased lines fading along their
+length; drawn over the scene, without a depth test) and HUD text on a dark box are drawn
+afterwards with OpenCV.
+
+Spheres are capsules with both ends at the centre, stored after the capsules: primitive id
+M + k is sphere k. `Renderer.timings` holds the last frame's milliseconds (raster: validation,
+upload, kernels, copy out; overlay: trails and HUD).
 """
 
 from __future__ import annotations
@@ -353,17 +359,18 @@ def draw_trails(frame: np.ndarray, camera: Camera, trails) -> None:
         value = int(round(255 * TRAIL_ALPHA * (1.0 - k / TRAIL_PIECES)))
         for th in np.unique(thick[visible]):
             sel = visible & (thick == th)
-            lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2)
-            cv2.polylines(alpha, list(lines), False, value, int(th), cv2.LINE_AA, 4)
-    rows = np.flatnonzero(alpha.any(axis=1))
-    cols = np.flatnonzero(alpha.any(axis=0))
-    if rows.size == 0:
-        return
-    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    a = alpha[y0:y1, x0:x1, None].astype(np.float32) / 255.0
-    region = frame[y0:y1, x0:x1].astype(np.float32)
+            lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2): S two-point polylines
+            cv2.polylines(alpha, lines, False, value, int(th), cv2.LINE_AA, 4)
+    box = pix[visible].reshape(-1, 2)  # pixel box of the drawn trails, plus the line half-width
+    x0, y0 = np.clip(np.floor(box.min(axis=0)) - 4, 0, [w, h]).astype(int)
+    x1, y1 = np.clip(np.ceil(box.max(axis=0)) + 5, 0, [w, h]).astype(int)
+    ys, xs = np.nonzero(alpha[y0:y1, x0:x1])
+    ys += y0
+    xs += x0
+    a = alpha[ys, xs, None].astype(np.float32) * np.float32(1.0 / 255.0)
+    under = frame[ys, xs].astype(np.float32)
     color = np.array(TRAIL_COLOR, np.float32)
-    frame[y0:y1, x0:x1] = np.clip(region + (color - region) * a + 0.5, 0, 255).astype(np.uint8)
+    frame[ys, xs] = (under + (color - under) * a + 0.5).astype(np.uint8)
 
 
 def draw_hud(frame: np.ndarray, lines) -> None:

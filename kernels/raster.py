@@ -476,7 +476,7 @@ def shade_frame(
         eye = cam_vec(cam, 0)
         fwd = cam_vec(cam, 9)
         rd = pixel_ray(cam, px, py)
-        col = sky(rd)
+        col = ti.Vector([0.0, 0.0, 0.0])
         tg = ground_hit(eye, rd)
         key = keys[py, px]
         pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
@@ -508,5 +508,7 @@ def shade_frame(
             dark = sample_shadow(shadow, px, py)
             base = ti.Vector([GROUND[0], GROUND[1], GROUND[2]])
             col = fog(base * ((1.0 - GRID_DARK * grid) * (1.0 - dark)), tg)
+        elif not drawn:
+            col = sky(rd)
         for c in ti.static(range(3)):
             frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
