@@ -221,6 +221,7 @@ class Renderer:
         # The colour buffer is a host array the shading kernel writes in place (zero-copy on the
         # CPU backend): an ndarray's to_numpy costs ~20 ns per uint8 element there (57 ms at 720p).
         self._frame = np.zeros((h, w, 3), np.uint8)
+        self._depth = np.zeros((h, w), np.float32)  # what each pixel shows: view depth, inf = sky
         self._count = 0
         self.timings = {"raster_ms": 0.0, "overlay_ms": 0.0}
 
@@ -285,7 +286,7 @@ class Renderer:
         frame = self._raster(n)
         t_mid = time.perf_counter()
         if trails is not None:
-            draw_trails(frame, self._camera, trails)
+            draw_trails(frame, self._camera, trails, self._depth)
         if hud_lines:
             draw_hud(frame, hud_lines)
         t_end = time.perf_counter()
@@ -301,13 +302,18 @@ class Renderer:
         kr.clear_buffers(self._keys, self._shadow)
         kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys)
         kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow)
-        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._frame)
+        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._frame, self._depth)
         return self._frame.copy()
 
     def id_buffer(self) -> tuple[np.ndarray, np.ndarray]:
         """The last frame's z-buffer: (ids (H, W) int32, -1 where no primitive; depth (H, W)
         float32 view depth, inf where none). Ids count capsules first, then spheres."""
         return decode_keys(self._keys.to_numpy())
+
+    def depth_buffer(self) -> np.ndarray:
+        """The last frame's (H, W) float32 view depth of what each pixel shows (a primitive or the
+        ground; inf for sky): for picking, and the trails' depth test."""
+        return self._depth.copy()
 
     def shadow_buffer(self) -> np.ndarray:
         """The last frame's ground darkness, (H/2, W/2) float32 in 0..1 (texel (i, j) is seen
@@ -325,9 +331,14 @@ def _clip_near(p0: np.ndarray, p1: np.ndarray, z0: np.ndarray, z1: np.ndarray, n
     return p0 + (p1 - p0) * s0[:, None], p1 + (p0 - p1) * s1[:, None]
 
 
-def draw_trails(frame: np.ndarray, camera: Camera, trails) -> None:
+def draw_trails(frame: np.ndarray, camera: Camera, trails, depth: np.ndarray | None = None) -> None:
     """Draw (T, 2, 3) world segments into frame in place: anti-aliased lines, opaque at [:, 0]
-    fading to transparent at [:, 1], composited through one alpha layer (no depth test)."""
+    fading to transparent at [:, 1], composited through one alpha layer.
+
+    depth: the frame's (H, W) view depth (Renderer.depth_buffer); when given, each of a trail's
+    TRAIL_PIECES pieces is dropped where the scene at its midpoint's pixel is nearer than it
+    (a per-piece depth test: a trail passing behind a limb is hidden there).
+    """
     import cv2
 
     seg = np.asarray(trails, dtype=np.float64)
@@ -345,20 +356,28 @@ def draw_trails(frame: np.ndarray, camera: Camera, trails) -> None:
     p0, p1 = _clip_near(seg[keep, 0], seg[keep, 1], z0[keep], z1[keep], near)
     steps = np.linspace(0.0, 1.0, TRAIL_PIECES + 1)
     pts = p0[:, None, :] + (p1 - p0)[:, None, :] * steps[None, :, None]  # (T, P+1, 3)
-    pix, depth = camera.project(pts.reshape(-1, 3))
+    pix, z = camera.project(pts.reshape(-1, 3))
     pix = np.clip(np.nan_to_num(pix, nan=-1e6), -1e6, 1e6).reshape(len(p0), TRAIL_PIECES + 1, 2)
     fixed = np.round(pix * 16.0).astype(np.int32)  # 4 fractional bits (shift=4)
     lo, hi = pix.min(axis=1), pix.max(axis=1)
     visible = (hi[:, 0] >= -4) & (lo[:, 0] <= w + 4) & (hi[:, 1] >= -4) & (lo[:, 1] <= h + 4)
     if not np.any(visible):
         return
-    head_depth = depth.reshape(len(p0), TRAIL_PIECES + 1)[:, 0]
-    thick = np.clip(np.rint(camera.pixel_scale(head_depth) * TRAIL_WIDTH), 1, 3).astype(int)
+    z = z.reshape(len(p0), TRAIL_PIECES + 1)
+    thick = np.clip(np.rint(camera.pixel_scale(z[:, 0]) * TRAIL_WIDTH), 1, 3).astype(int)
+    shown = np.ones((len(p0), TRAIL_PIECES), bool)
+    if depth is not None:
+        mid_pix = np.rint(0.5 * (pix[:, 1:] + pix[:, :-1])).astype(np.int64)  # (T, P, 2)
+        mid_z = 0.5 * (z[:, 1:] + z[:, :-1])
+        inside = (mid_pix[..., 0] >= 0) & (mid_pix[..., 0] < w) & (mid_pix[..., 1] >= 0) & (mid_pix[..., 1] < h)
+        scene = np.full(mid_z.shape, np.inf)
+        scene[inside] = depth[mid_pix[..., 1][inside], mid_pix[..., 0][inside]]
+        shown = scene >= mid_z * 0.99 - 0.05
     alpha = np.zeros((h, w), np.uint8)
     for k in range(TRAIL_PIECES - 1, -1, -1):  # tail first, so brighter pieces overwrite fainter ones
         value = int(round(255 * TRAIL_ALPHA * (1.0 - k / TRAIL_PIECES)))
         for th in np.unique(thick[visible]):
-            sel = visible & (thick == th)
+            sel = visible & (thick == th) & shown[:, k]
             lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2): S two-point polylines
             cv2.polylines(alpha, lines, False, value, int(th), cv2.LINE_AA, 4)
     box = pix[visible].reshape(-1, 2)  # pixel box of the drawn trails, plus the line half-width

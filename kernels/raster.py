@@ -35,7 +35,7 @@ at integer coordinates, x right, y down; their ray is forward*focal + right*(px-
 Arrays: P primitives (only the first n are drawn), H x W pixels.
   pa, pb: (P, 3) float32 end points, metres, world frame; radius: (P,) float32 metres;
   color: (P, 3) float32 0..1, BGR; keys: (H, W) int64; shadow: (H/2, W/2) int32 (0..SHADOW_SCALE);
-  frame: (H, W, 3) uint8 BGR, row 0 at the top.
+  frame: (H, W, 3) uint8 BGR, row 0 at the top; depth: (H, W) float32 view depth, metres.
 The NumPy twin is crowd_ik/reference/raster.py; it imports the constants below.
 """
 
@@ -470,13 +470,16 @@ def shade_frame(
     keys: ndarray(dtype=ti.i64, ndim=2),
     shadow: ndarray(dtype=ti.i32, ndim=2),
     frame: ndarray(dtype=ti.u8, ndim=3),
+    depth: ndarray(dtype=ti.f32, ndim=2),
 ):
-    """frame (H, W, 3) uint8 BGR from the z-buffer keys and the shadow buffer."""
+    """frame (H, W, 3) uint8 BGR from the z-buffer keys and the shadow buffer; depth (H, W)
+    float32: view depth of what each pixel shows (a primitive or the ground), inf for sky."""
     for py, px in ti.ndrange(keys.shape[0], keys.shape[1]):
         eye = cam_vec(cam, 0)
         fwd = cam_vec(cam, 9)
         rd = pixel_ray(cam, px, py)
         col = ti.Vector([0.0, 0.0, 0.0])
+        seen = ti.math.inf
         tg = ground_hit(eye, rd)
         key = keys[py, px]
         pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
@@ -490,6 +493,7 @@ def shade_frame(
                 nrm = capsule_normal(rd * t, a, b)
                 col = fog(shade_capsule(row3(color, pid), nrm, rd, eye[1] + rd[1] * t), t)
                 drawn = True
+                seen = z
         if not drawn and tg > 0.0:
             g = eye + rd * tg
             # Pixel footprint on the ground from the neighbouring pixels' rays (for grid anti-aliasing).
@@ -508,7 +512,9 @@ def shade_frame(
             dark = sample_shadow(shadow, px, py)
             base = ti.Vector([GROUND[0], GROUND[1], GROUND[2]])
             col = fog(base * ((1.0 - GRID_DARK * grid) * (1.0 - dark)), tg)
+            seen = tg * rd.dot(fwd)
         elif not drawn:
             col = sky(rd)
         for c in ti.static(range(3)):
             frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
+        depth[py, px] = seen

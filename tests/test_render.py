@@ -23,6 +23,7 @@ def _kernel_buffers(cam, a, b, r, colors=None):
     keys = np.zeros((h, w), np.int64)
     shadow = np.zeros((h // 2, w // 2), np.int32)
     frame = np.zeros((h, w, 3), np.uint8)
+    seen = np.zeros((h, w), np.float32)
     packed = cam.packed()
     a, b, r = (np.ascontiguousarray(x, np.float32) for x in (a, b, r))
     if colors is None:
@@ -30,8 +31,8 @@ def _kernel_buffers(cam, a, b, r, colors=None):
     kr.clear_buffers(keys, shadow)
     kr.raster_capsules(packed, a, b, r, len(r), keys)
     kr.splat_shadows(packed, a, b, r, len(r), shadow)
-    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, frame)
-    return keys, shadow, frame
+    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, frame, seen)
+    return keys, shadow, frame, seen
 
 
 def _scene(seed=0, n=6):
@@ -123,7 +124,7 @@ def test_camera_rejects_bad_arguments(kwargs):
 def test_raster_matches_numpy_twin(seed):
     cam = _cam()
     a, b, r = _scene(seed)
-    keys, _, _ = _kernel_buffers(cam, a, b, r)
+    keys, _, _, _ = _kernel_buffers(cam, a, b, r)
     ids, depth = decode_keys(keys)
     rids, rdepth = ref.raster_capsules(cam.packed(), a, b, r, cam.width, cam.height)
     same = ids == rids
@@ -140,7 +141,7 @@ def test_raster_matches_numpy_twin(seed):
 def test_shadow_buffer_matches_numpy_twin():
     cam = _cam(pos=(1.0, 5.0, 5.0))
     a, b, r = _scene(3)
-    _, shadow, _ = _kernel_buffers(cam, a, b, r)
+    _, shadow, _, _ = _kernel_buffers(cam, a, b, r)
     expect = ref.splat_shadows(cam.packed(), a, b, r, cam.width, cam.height)
     assert expect.max() > 0.3 * kr.SHADOW_SCALE
     assert np.abs(shadow.astype(np.int64) - expect).max() <= 3  # float32 vs float64 rounding only
@@ -150,12 +151,14 @@ def test_shading_matches_numpy_twin():
     cam = _cam(pos=(0.5, 3.0, 5.0))
     a, b, r = _scene(4)
     colors = np.random.default_rng(4).uniform(0.1, 1.0, (len(r), 3))
-    keys, shadow, frame = _kernel_buffers(cam, a, b, r, colors)
+    keys, shadow, frame, seen = _kernel_buffers(cam, a, b, r, colors)
     ids, depth = decode_keys(keys)
-    expect = ref.shade_frame(cam.packed(), a, b, colors, ids, depth.astype(np.float64), shadow, cam.width, cam.height)
+    expect, expect_seen = ref.shade_frame(cam.packed(), a, b, colors, ids, depth.astype(np.float64), shadow, cam.width, cam.height)
     diff = np.abs(frame.astype(int) - expect).max(axis=2)
     assert (diff <= 2).mean() >= 0.995
     assert diff.max() <= 8
+    assert np.isinf(seen).sum() >= 64 and np.array_equal(np.isinf(seen), np.isinf(expect_seen))  # sky
+    np.testing.assert_allclose(seen[np.isfinite(seen)], expect_seen[np.isfinite(seen)], rtol=1e-4)
 
 
 # --- Renderer ------------------------------------------------------------------------------------
@@ -261,7 +264,7 @@ def test_empty_scene_is_sky_over_ground():
     top, bottom = frame[0].astype(int), frame[-1].astype(int)
     assert np.all(top[:, 0] > top[:, 2] + 40)  # blue sky (B >> R)
     assert np.all(np.abs(bottom - np.array(kr.GROUND) * 255).max(axis=1) < 50)  # ground colour
-    expect = ref.shade_frame(cam.packed(), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), ids, depth, np.zeros((24, 32), np.int32), 64, 48)
+    expect, _ = ref.shade_frame(cam.packed(), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), ids, depth, np.zeros((24, 32), np.int32), 64, 48)
     assert np.abs(frame.astype(int) - expect).max() <= 2
 
 
@@ -338,6 +341,21 @@ def test_trails_fade_from_head_to_tail_and_hud_draws_a_box():
     assert box.min() < 0.5 * base[10:30, 10:40].min()  # darkened backing box
     assert box.max() > 200  # white text
     assert np.array_equal(hud[60:], base[60:])
+
+
+def test_trails_hide_behind_nearer_limbs():
+    cam = _cam(w=160, h=96, pos=(0.0, 1.0, 6.0), look=(0.0, 1.0, 0.0))
+    rend = Renderer(cam, 1, 0)
+    post = ([[0.0, 0.0, 2.0]], [[0.0, 2.0, 2.0]], [0.3], [0.9, 0.9, 0.9])  # a vertical limb in front
+    base = rend.render(*post)
+    depth = rend.depth_buffer()
+    frame = rend.render(*post, trails=[[[-2.0, 1.0, -1.0], [2.0, 1.0, -1.0]]])  # a trail behind it
+    pix, z = cam.project(np.array([[-1.8, 1.0, -1.0], [-0.2, 1.0, -1.0], [0.0, 1.0, 2.0]]))
+    (lx, ly), (bx, by), (cx, cy) = np.round(pix).astype(int)
+    assert depth[cy, cx] == pytest.approx(z[2] - 0.3, rel=1e-3) and depth[by, bx] < z[1]
+    assert np.abs(frame[ly, lx].astype(int) - base[ly, lx]).sum() > 60  # beside the limb: drawn
+    np.testing.assert_array_equal(frame[:, bx - 2 : bx + 3], base[:, bx - 2 : bx + 3])  # behind it: hidden
+    assert np.isinf(depth[0]).all() and np.isfinite(depth[-1]).all()  # sky above, ground below
 
 
 def test_renderer_rejects_bad_input():

@@ -160,15 +160,17 @@ def _fog(col: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return col + (np.array(k.SKY_HORIZON) - col) * f[..., None]
 
 
-def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int) -> np.ndarray:
-    """(H, W, 3) uint8 BGR frame from ids/depth (as `raster_capsules` returns) and the (H/2, W/2)
-    shadow levels (as `splat_shadows` returns)."""
+def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frame (H, W, 3) uint8 BGR, seen (H, W) view depth of what each pixel shows, inf for sky)
+    from ids/depth (as `raster_capsules` returns) and the (H/2, W/2) shadow levels (as
+    `splat_shadows` returns)."""
     eye, _, _, fwd, _, _, _, _ = _camera(cam)
     rd = pixel_rays(cam, width, height)
     y = np.clip(rd[..., 1], 0.0, 1.0)
     horizon, zenith = np.array(k.SKY_HORIZON), np.array(k.SKY_ZENITH)
     col = horizon + (zenith - horizon) * np.sqrt(y)[..., None]
     tg = ground_hit(eye, rd)
+    seen = np.full((height, width), np.inf)
 
     hit = ids >= 0
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -197,6 +199,7 @@ def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int)
         base = np.asarray(color, np.float64)[i]
         shaded = base * ((ambient + k.DIFFUSE * diffuse) * ao)[:, None] + (rim + spec)[:, None]
         col[capsule] = _fog(shaded, tc[:, 0])
+        seen[capsule] = depth[capsule]
 
     ground = ~capsule & (tg > 0.0)
     if np.any(ground):
@@ -214,4 +217,5 @@ def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int)
         shade = (1.0 - k.GRID_DARK * grid) * (1.0 - dark)
         ground_col = _fog(np.array(k.GROUND) * shade[..., None], tg)
         col[ground] = ground_col[ground]
-    return np.floor(np.clip(col, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+        seen[ground] = (tg * (rd @ fwd))[ground]
+    return np.floor(np.clip(col, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8), seen
