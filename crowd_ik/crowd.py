@@ -326,7 +326,8 @@ class Crowd:
             ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient, work, acc_w,
-            max_iterations, tolerance, self._error, self._iters, self._stalled,
+            max_iterations, tolerance, int(not (self.rig.constraint_free and self._orient_zero)),
+            self._error, self._iters, self._stalled,
         )
 
     def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:
@@ -343,8 +344,10 @@ class Crowd:
         eff_lim.from_numpy(settings["eff_lim"])
         jw = self.scratch("dls_joint_w", ti.f32, (D + 1,))
         jw.from_numpy(joint_w)
+        jmode = self.scratch("dls_jmode", ti.i32, (J,))
+        jmode.from_numpy(settings["jmode"])
         dls.dls_solve(
-            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+            ra["parent"], ra["offset"], ra["kind"], jmode, ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
             ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"], eff_lim, jw,
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient,

@@ -243,6 +243,12 @@ class Rig:
         return lo, hi
 
     @cached_property
+    def constraint_free(self) -> bool:
+        """True when every joint is an unlimited ball (or fixed): nothing constrains a FABRIK pose."""
+        return all(j.kind in ("ball", "fixed") and j.cone is None and all(math.isinf(v) for v in j.lo + j.hi)
+                   for j in self.joints)
+
+    @cached_property
     def bone_lengths(self) -> np.ndarray:
         """(J,) float64: |offset| of each joint (0 for the root)."""
         lengths = np.linalg.norm(np.array([j.offset for j in self.joints]), axis=1)

@@ -192,6 +192,9 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
     pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
     err = _error(rig, pos, targets, weights)
     turn = _turn(rig, wrot, weights, orient)
+    deferred = rig.constraint_free and orientations is None
+    last_work = np.zeros(pos.shape) if deferred else None
+    last_acc = np.zeros(pos.shape[:2]) if deferred else None
     iters = np.zeros(N, np.int32)
     flat = np.zeros(N, np.int32)
     stalled = np.zeros(N, bool)
@@ -202,7 +205,11 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
         idx = np.nonzero(live)[0]
         work, acc = _passes(rig, pos[idx], targets[idx], weights[idx])
         r, p, w = rot[idx], pos[idx], wrot[idx]
-        _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx])
+        if deferred:  # as the kernel: a constraint-free rig recovers its rotations once, after the last iteration
+            p = np.where((acc > 0)[..., None], work, p)
+            last_work[idx], last_acc[idx] = work, acc
+        else:
+            _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx])
         rot[idx], pos[idx], wrot[idx] = r, p, w
         new_err = _error(rig, p, targets[idx], weights[idx])
         new_turn = _turn(rig, w, weights[idx], orient[idx])
@@ -212,4 +219,10 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
         err[idx] = new_err
         turn[idx] = new_turn
         stalled[idx] = flat[idx] >= 4
+    if deferred and np.any(iters > 0):
+        idx = np.nonzero(iters > 0)[0]
+        r, p, w = rot[idx], pos[idx], wrot[idx]
+        _recover(rig, root_pos[idx], q_root[idx], r, p, w, last_work[idx], last_acc[idx], weights[idx], orient[idx])
+        rot[idx], pos[idx], wrot[idx] = r, p, w
+        err[idx] = _error(rig, p, targets[idx], weights[idx])
     return rot, pos, err, iters, stalled
