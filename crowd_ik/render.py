@@ -31,7 +31,7 @@ NEAR = 0.05  # metres: hits nearer than this view depth are clipped
 TRAIL_COLOR = (90, 200, 255)  # BGR: warm yellow-orange
 TRAIL_ALPHA = 0.85  # opacity at a trail's head, fading to 0 at its tail
 TRAIL_WIDTH = 0.04  # metres: trail thickness in the world, at least 1 pixel, at most 3
-TRAIL_PIECES = 6  # fade steps along a trail
+TRAIL_PIECES = 8  # fade steps (and depth-test pieces) along a trail
 HUD_MARGIN = 8  # pixels
 
 
