@@ -62,7 +62,8 @@ class Camera:
         self.position = _vec3("camera position", position)
         self.look_at = _vec3("camera look_at", look_at)
         up_hint = _vec3("camera up", up)
-        if isinstance(fov_deg, bool) or not isinstance(fov_deg, (int, float, np.floating, np.integer)) or not 0.0 < float(fov_deg) < 180.0:
+        numeric = isinstance(fov_deg, (int, float, np.floating, np.integer)) and not isinstance(fov_deg, bool)
+        if not numeric or not 0.0 < float(fov_deg) < 180.0:
             raise ValueError(f"camera fov_deg: expected a number in (0, 180) (got {fov_deg!r})")
         self.fov_deg = float(fov_deg)
         self.width = _size("camera width", width)
@@ -298,7 +299,8 @@ class Renderer:
 
         self._cam.from_numpy(self._camera.packed())
         if n:
-            kr.load_primitives(self._host_a, self._host_b, self._host_r, self._host_c, n, self._pa, self._pb, self._radius, self._color)
+            hosts = (self._host_a, self._host_b, self._host_r, self._host_c)
+            kr.load_primitives(*hosts, n, self._pa, self._pb, self._radius, self._color)
         kr.clear_buffers(self._keys, self._shadow)
         kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys)
         kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow)

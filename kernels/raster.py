@@ -333,8 +333,10 @@ def raster_capsules(
                 bxb = sphere_bounds(b.dot(right), zb, r)
                 bya = sphere_bounds(a.dot(up), za, r)
                 byb = sphere_bounds(b.dot(up), zb, r)
-                xr = pixel_range(cam[13] + focal * ti.min(bxa[0], bxb[0]), cam[13] + focal * ti.max(bxa[1], bxb[1]), width)
-                yr = pixel_range(cam[14] - focal * ti.max(bya[1], byb[1]), cam[14] - focal * ti.min(bya[0], byb[0]), height)
+                cx = cam[13]
+                cy = cam[14]
+                xr = pixel_range(cx + focal * ti.min(bxa[0], bxb[0]), cx + focal * ti.max(bxa[1], bxb[1]), width)
+                yr = pixel_range(cy - focal * ti.max(bya[1], byb[1]), cy - focal * ti.min(bya[0], byb[0]), height)
             # else: the capsule crosses the near plane; test every pixel of the screen.
             d0 = dir_origin(cam)
             for py in range(yr[0], yr[1] + 1):
@@ -394,8 +396,9 @@ def splat_shadows(
             s_lo = ti.Vector([BIG, BIG])
             s_hi = ti.Vector([-BIG, -BIG])
             for k in ti.static(range(4)):
+                k1 = ti.static((k + 1) % 4)
                 p = ti.Vector([x_lo + (x_hi - x_lo) * _CORNER_X[k], 0.0, z_lo + (z_hi - z_lo) * _CORNER_Z[k]])
-                q = ti.Vector([x_lo + (x_hi - x_lo) * _CORNER_X[(k + 1) % 4], 0.0, z_lo + (z_hi - z_lo) * _CORNER_Z[(k + 1) % 4]])
+                q = ti.Vector([x_lo + (x_hi - x_lo) * _CORNER_X[k1], 0.0, z_lo + (z_hi - z_lo) * _CORNER_Z[k1]])
                 zp = (p - eye).dot(fwd) - near
                 zq = (q - eye).dot(fwd) - near
                 if zp >= 0.0:

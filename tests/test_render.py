@@ -153,7 +153,7 @@ def test_shading_matches_numpy_twin():
     colors = np.random.default_rng(4).uniform(0.1, 1.0, (len(r), 3))
     keys, shadow, frame, seen = _kernel_buffers(cam, a, b, r, colors)
     ids, depth = decode_keys(keys)
-    expect, expect_seen = ref.shade_frame(cam.packed(), a, b, colors, ids, depth.astype(np.float64), shadow, cam.width, cam.height)
+    expect, expect_seen = ref.shade_frame(cam.packed(), a, b, colors, ids, depth, shadow, cam.width, cam.height)
     diff = np.abs(frame.astype(int) - expect).max(axis=2)
     assert (diff <= 2).mean() >= 0.995
     assert diff.max() <= 8
@@ -237,8 +237,9 @@ def test_frame_is_the_same_with_another_thread_count(tmp_path):
 
 def test_load_primitives_copies_the_first_n_rows():
     g = np.random.default_rng(9)
-    src = [g.normal(size=(10, 3)).astype(np.float32), g.normal(size=(10, 3)).astype(np.float32), g.uniform(size=10).astype(np.float32), g.uniform(size=(10, 3)).astype(np.float32)]
-    dst = [np.full((10, 3), -7, np.float32), np.full((10, 3), -7, np.float32), np.full(10, -7, np.float32), np.full((10, 3), -7, np.float32)]
+    shapes = [(10, 3), (10, 3), (10,), (10, 3)]
+    src = [g.normal(size=s).astype(np.float32) for s in shapes]
+    dst = [np.full(s, -7, np.float32) for s in shapes]
     kr.load_primitives(*src, 6, *dst)
     for s_, d_ in zip(src, dst):
         np.testing.assert_array_equal(d_[:6], s_[:6])
@@ -264,7 +265,8 @@ def test_empty_scene_is_sky_over_ground():
     top, bottom = frame[0].astype(int), frame[-1].astype(int)
     assert np.all(top[:, 0] > top[:, 2] + 40)  # blue sky (B >> R)
     assert np.all(np.abs(bottom - np.array(kr.GROUND) * 255).max(axis=1) < 50)  # ground colour
-    expect, _ = ref.shade_frame(cam.packed(), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), ids, depth, np.zeros((24, 32), np.int32), 64, 48)
+    none = np.zeros((0, 3))
+    expect, _ = ref.shade_frame(cam.packed(), none, none, none, ids, depth, np.zeros((24, 32), np.int32), 64, 48)
     assert np.abs(frame.astype(int) - expect).max() <= 2
 
 
@@ -313,7 +315,9 @@ def test_uint8_colours_equal_float_colours():
 def test_spheres_draw_with_ids_after_capsules():
     cam = _cam(w=96, h=64, pos=(0.0, 1.0, 5.0), look=(0.0, 1.0, 0.0))
     rend = Renderer(cam, 3, 2)
-    frame = rend.render([[-1.5, 1.0, 0.0]], [[-1.5, 1.5, 0.0]], [0.1], [1.0, 1.0, 1.0], [[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], [0.2, 0.3], [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    capsule = ([[-1.5, 1.0, 0.0]], [[-1.5, 1.5, 0.0]], [0.1], [1.0, 1.0, 1.0])
+    spheres = ([[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], [0.2, 0.3], [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    frame = rend.render(*capsule, *spheres)
     ids, depth = rend.id_buffer()
     pix, z = cam.project(np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]))
     for k, (x, y) in enumerate(np.round(pix).astype(int)):

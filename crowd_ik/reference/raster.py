@@ -210,8 +210,9 @@ def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int)
         gx = eye + rx * tx[..., None]
         gy = eye + ry * ty[..., None]
         both = (tx > 0.0) & (ty > 0.0)
-        fwx = np.where(both, np.maximum(np.maximum(np.abs(gx[..., 0] - g[..., 0]), np.abs(gy[..., 0] - g[..., 0])), 1e-4), 1e3)
-        fwz = np.where(both, np.maximum(np.maximum(np.abs(gx[..., 2] - g[..., 2]), np.abs(gy[..., 2] - g[..., 2])), 1e-4), 1e3)
+        step_x, step_y = np.abs(gx - g), np.abs(gy - g)  # ground moved by one pixel right / down
+        fwx = np.where(both, np.maximum(np.maximum(step_x[..., 0], step_y[..., 0]), 1e-4), 1e3)
+        fwz = np.where(both, np.maximum(np.maximum(step_x[..., 2], step_y[..., 2]), 1e-4), 1e3)
         grid = np.maximum(_line_cover(g[..., 0], fwx), _line_cover(g[..., 2], fwz))
         dark = sample_shadow(shadow, width, height)
         shade = (1.0 - k.GRID_DARK * grid) * (1.0 - dark)
