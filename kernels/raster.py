@@ -245,10 +245,10 @@ def shadow_value(gx, gz, a, b, r):
 
 @ti.func
 def ground_hit(eye, rd):
-    """Parameter t where eye + t rd meets the ground y = 0 from above; -1 when it does not
-    (rd need not be a unit vector; for a unit rd, t is the distance)."""
+    """Distance along the unit ray eye + t rd to the ground y = 0 seen from above; -1 when the
+    ray does not reach it."""
     t = -1.0
-    if eye[1] > 0.0 and rd[1] < -1e-7 * rd.norm():
+    if eye[1] > 0.0 and rd[1] < -1e-7:
         t = -eye[1] / rd[1]
     return t
 
@@ -480,7 +480,8 @@ def shade_frame(
     for py, px in ti.ndrange(keys.shape[0], keys.shape[1]):
         eye = cam_vec(cam, 0)
         fwd = cam_vec(cam, 9)
-        rd = pixel_ray(cam, px, py)
+        d = pixel_dir(cam, px, py)
+        rd = d.normalized()
         col = ti.Vector([0.0, 0.0, 0.0])
         seen = ti.math.inf
         tg = ground_hit(eye, rd)
@@ -502,13 +503,11 @@ def shade_frame(
             # Pixel footprint on the ground from the neighbouring pixels' rays (for grid anti-aliasing).
             fwx = 1.0e3
             fwz = 1.0e3
-            rx = pixel_dir(cam, px + 1, py)
-            ry = pixel_dir(cam, px, py + 1)
-            tx = ground_hit(eye, rx)
-            ty = ground_hit(eye, ry)
-            if tx > 0.0 and ty > 0.0:
-                gx = eye + rx * tx
-                gy = eye + ry * ty
+            rx = d + cam_vec(cam, 3)  # rays through pixels (px + 1, py) and (px, py + 1)
+            ry = d - cam_vec(cam, 6)
+            if rx[1] < 0.0 and ry[1] < 0.0:
+                gx = eye - rx * (eye[1] / rx[1])
+                gy = eye - ry * (eye[1] / ry[1])
                 fwx = ti.max(ti.max(ti.abs(gx[0] - g[0]), ti.abs(gy[0] - g[0])), 1e-4)
                 fwz = ti.max(ti.max(ti.abs(gx[2] - g[2]), ti.abs(gy[2] - g[2])), 1e-4)
             grid = ti.max(line_cover(g[0], fwx), line_cover(g[2], fwz))

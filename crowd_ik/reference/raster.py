@@ -204,12 +204,12 @@ def shade_frame(cam, pa, pb, color, ids, depth, shadow, width: int, height: int)
     ground = ~capsule & (tg > 0.0)
     if np.any(ground):
         g = eye + rd * tg[..., None]
-        rx = pixel_rays(cam, width, height, dx=1.0)
+        rx = pixel_rays(cam, width, height, dx=1.0)  # rays through the next pixel right / down
         ry = pixel_rays(cam, width, height, dy=1.0)
-        tx, ty = ground_hit(eye, rx), ground_hit(eye, ry)
-        gx = eye + rx * tx[..., None]
-        gy = eye + ry * ty[..., None]
-        both = (tx > 0.0) & (ty > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gx = eye - rx * (eye[1] / rx[..., 1])[..., None]
+            gy = eye - ry * (eye[1] / ry[..., 1])[..., None]
+        both = (rx[..., 1] < 0.0) & (ry[..., 1] < 0.0)
         step_x, step_y = np.abs(gx - g), np.abs(gy - g)  # ground moved by one pixel right / down
         fwx = np.where(both, np.maximum(np.maximum(step_x[..., 0], step_y[..., 0]), 1e-4), 1e3)
         fwz = np.where(both, np.maximum(np.maximum(step_x[..., 2], step_y[..., 2]), 1e-4), 1e3)
