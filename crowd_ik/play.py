@@ -1,0 +1,180 @@
+"""`crowd-ik play`: simulate a scene and render it to a video (or one still), with a progress bar
+on stderr and a one-screen summary on stdout.
+
+Order of work: check the arguments and that every output may be written (no clobbering without
+--force) before anything is simulated; start Taichi once; build the World; then step and render
+frame by frame into the sink. Ctrl-C finalises the frames written so far as a shorter, playable
+video (the sink's context manager) and the CLI exits with 130.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+from crowd_ik import runtime
+from crowd_ik.output import check_writable, check_writable_dir, is_dir_target, write_json
+from crowd_ik.scene import Scene, load_scene, parse_size, scene_with
+
+_LATER = {  # flags the parser declares for a later version of this command
+    "live": "--live: playing in a window is not available in this version",
+    "record": "--record: recording inputs (with --live) is not available in this version",
+    "inputs": "--inputs: replaying recorded inputs is not available in this version",
+    "clip": "--clip: saving motion clips is not available in this version",
+}
+
+
+def _refuse_unavailable(args) -> None:
+    for flag, message in _LATER.items():
+        value = getattr(args, flag, None)
+        if value:
+            raise ValueError(message)
+
+
+def build_scene(args) -> Scene:
+    """The scene file (or the built-in arena) with the command line's overrides applied and checked."""
+    scene = load_scene(args.scene)
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed: must be zero or a positive integer (got {args.seed})")
+    size = None if args.size is None else parse_size(args.size, "--size")
+    return scene_with(scene, seed=args.seed, frames=args.frames, seconds=args.seconds, fps=args.fps,
+                      size=size, method=args.solver)
+
+
+def output_path(args, scene: Scene) -> str:
+    """-o, or ./<scene>.mp4 (./<scene>_frame<K>.png with --still K)."""
+    if args.output is not None:
+        return args.output
+    if args.still is not None:
+        return f"{scene.name}_frame{args.still}.png"
+    return f"{scene.name}.mp4"
+
+
+def check_outputs(args, scene: Scene, out: str) -> None:
+    """Refuse bad or existing outputs before any simulation (FileExistsError without --force)."""
+    if args.still is not None:
+        if args.still < 0 or args.still >= scene.n_frames:
+            raise ValueError(f"--still: frame must be in [0, {scene.n_frames - 1}] for this scene's "
+                             f"{scene.n_frames} frames (got {args.still})")
+        if is_dir_target(out) or Path(out).suffix.lower() != ".png":
+            raise ValueError(f"-o: a still is written as a .png file (got {out!r})")
+        check_writable(out, args.force)
+    elif is_dir_target(out):
+        check_writable_dir(out, args.force)
+    else:
+        from crowd_ik.video import VIDEO_SUFFIXES
+
+        suffix = Path(out).suffix.lower()
+        if suffix == ".png":
+            raise ValueError(f"-o: {out} is a single still; add --still K for one frame, or end the path "
+                             f"with '/' for a folder of PNG frames")
+        if suffix not in VIDEO_SUFFIXES:
+            raise ValueError(f"-o: unknown video suffix {suffix or '(none)'!r} in {out!r}; use .mp4 (H.264), "
+                             f".webm (VP8) or a folder ending in '/'")
+        check_writable(out, args.force)
+    if args.stats is not None:
+        if Path(args.stats).suffix.lower() != ".json":
+            raise ValueError(f"--stats: expected a .json file (got {args.stats!r})")
+        if os.path.abspath(args.stats) == os.path.abspath(out):
+            raise ValueError(f"--stats: {args.stats} is also the video output")
+        check_writable(args.stats, args.force)
+
+
+def _progress(total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, mininterval=0.5,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} frames "
+                           "[{elapsed}<{remaining}, {rate_fmt}]")
+
+
+def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: int) -> dict:
+    """The run's numbers (what --stats writes)."""
+    totals = world.totals
+    frames = max(totals["frames"], 1)
+    s = world.stats
+    return {
+        "scene": scene.name,
+        "output": str(out),
+        "frames": rendered,
+        "size": [scene.video.width, scene.video.height],
+        "fps": scene.video.fps,
+        "characters": scene.characters.count,
+        "standing": s["standing"],
+        "shooters": scene.shooters.count,
+        "shots": s["shots"],
+        "hits": s["hits"],
+        "dodges": s["dodges"],
+        "world_time_s": s["world_time"],
+        "world_steps": s["steps"],
+        "solver": scene.solver.method,
+        "mean_simulation_ms": totals["simulation_ms"] / frames,
+        "mean_ik_ms": totals["ik_ms"] / frames,
+        "mean_render_ms": totals["render_ms"] / max(totals["rendered"], 1),
+        "wall_s": wall_s,
+        "arch": arch,
+        "threads": runtime.current().get("threads"),
+        "seed": scene.seed,
+    }
+
+
+def format_summary(info: dict) -> str:
+    """The one-screen text summary."""
+    w, h = info["size"]
+    return "\n".join([
+        f"{info['scene']}: {info['frames']} frames, {w}x{h} at {info['fps']:g} fps -> {info['output']}",
+        f"  characters  {info['characters']} ({info['standing']} standing), shooters {info['shooters']}, "
+        f"shots {info['shots']}",
+        f"  hits        {info['hits']}",
+        f"  dodges      {info['dodges']}",
+        f"  per frame   simulation {info['mean_simulation_ms']:.1f} ms, IK {info['mean_ik_ms']:.1f} ms "
+        f"({info['solver']}), render {info['mean_render_ms']:.1f} ms",
+        f"  world time  {info['world_time_s']:.2f} s in {info['world_steps']} steps",
+        f"  wall time   {info['wall_s']:.1f} s on {info['arch']}",
+    ])
+
+
+def run(args) -> int:
+    """`crowd-ik play`: see the module docstring."""
+    t_start = time.perf_counter()
+    _refuse_unavailable(args)
+    scene = build_scene(args)
+    out = output_path(args, scene)
+    check_outputs(args, scene, out)
+    arch = runtime.init(arch=args.arch, threads=args.threads)
+    from crowd_ik.game import World
+    from crowd_ik.video import open_sink, write_png
+
+    world = World(scene)
+    if args.still is not None:
+        with _progress(args.still + 1, f"{scene.name} still") as bar:
+            for _ in range(args.still):
+                world.step()
+                bar.update()
+            frame = world.render()
+            bar.update()
+        write_png(out, frame, force=args.force)
+        rendered = 1
+    else:
+        n = scene.n_frames
+        rendered = 0
+        with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
+                _progress(n, scene.name) as bar:
+            for k in range(n):
+                if k:
+                    world.step()
+                sink.write(world.render())
+                rendered += 1
+                bar.update()
+    info = summary(world, scene, out, time.perf_counter() - t_start, arch, rendered)
+    if args.stats is not None:
+        write_json(args.stats, info, force=args.force)
+    print(format_summary(info), flush=True)
+    if args.stats is not None:
+        print(f"  stats       {args.stats}")
+    return 0
+
+
+__all__ = ["run", "build_scene", "output_path", "check_outputs", "summary", "format_summary"]
