@@ -364,28 +364,20 @@ class Crowd:
         from crowd_ik.kernels import ccd
 
         ra, ti, rig = self.rig_arrays, self._ti, self.rig
-        # per (joint j, effector e): e's joint in j's subtree (j included); bone length from j down to e;
-        # the child of j on that path (-1 if none)
-        J, E = rig.n_joints, rig.n_effectors
-        below_np = np.zeros((J, E), np.int32)
-        length_np = np.zeros((J, E), np.float32)
-        child_np = np.full((J, E), -1, np.int32)
+        # below[j, e] = 1 where effector e's joint lies in joint j's subtree (j included)
+        below_np = np.zeros((rig.n_joints, rig.n_effectors), np.int32)
         for e, eff in enumerate(rig.effectors):
-            path = rig.path_to_root(eff.joint)
-            below_np[path, e] = 1
-            child_np[path[1:], e] = path[:-1]
-            length_np[path, e] = np.cumsum(rig.bone_lengths[path]) - rig.bone_lengths[path]
-        arrays = []
-        for name, dtype, value in (("below", ti.i32, below_np), ("len", ti.f32, length_np), ("child", ti.i32, child_np)):
-            arr = self.scratch(f"ccd_{name}", dtype, (J, E))
-            arr.from_numpy(value)
-            arrays.append(arr)
-        below, chain_len, path_child = arrays
+            below_np[rig.path_to_root(eff.joint), e] = 1
+        below = self.scratch("ccd_below", ti.i32, below_np.shape)
+        below.from_numpy(below_np)
+        reach = self.scratch("ccd_reach", ti.f32, (rig.n_effectors,))
+        reach.from_numpy(rig.reach.astype(np.float32))
         ccd.ccd_solve(
             ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
-            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, chain_len, path_child,
+            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, reach,
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient,
+            self.scratch("ccd_rel_t", ti.math.vec3, (self.n, rig.n_effectors)),
             max_iterations, tolerance, self._error, self._iters, self._stalled,
         )
 
