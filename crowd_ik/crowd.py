@@ -378,6 +378,7 @@ class Crowd:
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient,
             self.scratch("ccd_rel_t", ti.math.vec3, (self.n, rig.n_effectors)),
+            self.scratch("ccd_eff_pos", ti.math.vec3, (self.n, rig.n_effectors)),
             max_iterations, tolerance, self._error, self._iters, self._stalled,
         )
 

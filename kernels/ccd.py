@@ -22,10 +22,11 @@ Two rules replace that step where plain CCD is known to lock up:
   sweep leaves the run straight and the joint above it aims it; plain CCD keeps any fold (a fixed
   point of CCD) and unbends slowly.
 
-Each result is clamped to the joint's limits (cone, then box) and FK of the joints after it is
-recomputed, so the pose is always FK(rotations): bone lengths are exact and limits hold. After the
-sweep, orientation targets on effector joints swing those joints' local axes onto the target
-directions, in topological order (parents first, so a later turn cannot undo them).
+Each result is clamped to the joint's limits (cone, then box); the effectors below the joint turn
+with it, and FK runs once at the end of the sweep, so the pose is always FK(rotations): bone
+lengths are exact and limits hold. After the sweep, orientation targets on effector joints swing
+those joints' local axes onto the target directions, in topological order (parents first, so a
+later turn cannot undo them).
 """
 
 import taichi as ti
@@ -81,14 +82,14 @@ def fk_after(i, j0, parent: ti.template(), offset: ti.template(), local_rot: ti.
 
 @ti.func
 def hinge_step(i, j, q, ax, inv_base, pos_j, below: ti.template(), eff_joint: ti.template(),
-               rel_t: ti.template(), weights: ti.template(), world_pos: ti.template()):
+               rel_t: ti.template(), weights: ti.template(), eff_pos: ti.template()):
     """q turned about the hinge axis ax (parent frame) by the best angle for the effectors below j."""
     s_cross = 0.0
     s_dot = 0.0
     for e in range(eff_joint.shape[0]):
         w = weights[i, e]
         if below[j, e] != 0 and w > 0.0:
-            u = qrot(inv_base, world_pos[i, eff_joint[e]] - pos_j)
+            u = qrot(inv_base, eff_pos[i, e] - pos_j)
             v = qrot(inv_base, rel_t[i, e] - pos_j)
             u = u - u.dot(ax) * ax
             v = v - v.dot(ax) * ax
@@ -102,14 +103,14 @@ def hinge_step(i, j, q, ax, inv_base, pos_j, below: ti.template(), eff_joint: ti
 
 @ti.func
 def hinge_reach_step(i, q, ax, lo_j, hi_j, inv_base, pos_j, pos_p, e, eff_joint: ti.template(),
-                     rel_t: ti.template(), world_pos: ti.template()):
+                     rel_t: ti.template(), eff_pos: ti.template()):
     """q turned about the hinge axis so that |effector - parent| = |target - parent| (clamped to what it spans).
 
     Of the two bends (+-phi) it takes the one inside the hinge's limits, else the one nearer to them,
     and on a tie the smaller turn.
     """
     r = qrot(inv_base, pos_j - pos_p)
-    u = qrot(inv_base, world_pos[i, eff_joint[e]] - pos_j)
+    u = qrot(inv_base, eff_pos[i, e] - pos_j)
     d_t = (rel_t[i, e] - pos_p).norm()
     r_par = r.dot(ax)
     u_par = u.dot(ax)
@@ -138,12 +139,12 @@ def hinge_reach_step(i, q, ax, lo_j, hi_j, inv_base, pos_j, pos_p, e, eff_joint:
 
 @ti.func
 def swing_step(i, j, q, inv_base, pos_j, below: ti.template(), eff_joint: ti.template(), rel_t: ti.template(),
-               weights: ti.template(), world_pos: ti.template()):
+               weights: ti.template(), eff_pos: ti.template()):
     """q preceded by the (averaged) swing turning the effectors below j toward their targets (parent frame)."""
     n_eff = 0
     for e in range(eff_joint.shape[0]):
         if below[j, e] != 0 and weights[i, e] > 0.0:
-            if (world_pos[i, eff_joint[e]] - pos_j).norm_sqr() > 1e-18:
+            if (eff_pos[i, e] - pos_j).norm_sqr() > 1e-18:
                 n_eff += 1
     delta = vec4(0.0, 0.0, 0.0, 1.0)
     rounds = 1
@@ -155,7 +156,7 @@ def swing_step(i, j, q, inv_base, pos_j, below: ti.template(), eff_joint: ti.tem
             for e in range(eff_joint.shape[0]):
                 w = weights[i, e]
                 if below[j, e] != 0 and w > 0.0:
-                    u = qrot(delta, qrot(inv_base, world_pos[i, eff_joint[e]] - pos_j))
+                    u = qrot(delta, qrot(inv_base, eff_pos[i, e] - pos_j))
                     v = qrot(inv_base, rel_t[i, e] - pos_j)
                     nu = u.norm()
                     nv = v.norm()
@@ -186,13 +187,10 @@ def straighten_step(k, q, ax, u, v):
 
 
 @ti.func
-def finish_joint(i, j, q, base_rot, parent: ti.template(), offset: ti.template(), kind: ti.template(),
-                 axes: ti.template(), lo: ti.template(), hi: ti.template(), cone: ti.template(),
-                 dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
-                 below: ti.template(), weights: ti.template(), local_rot: ti.template(), world_pos: ti.template(),
-                 world_rot: ti.template()):
-    """Clamp q to joint j's limits, store it and update FK below j."""
-    # the cone limits the swing of the first child bone that leads to an active effector
+def constrain_joint(i, j, q, offset: ti.template(), kind: ti.template(), axes: ti.template(), lo: ti.template(),
+                    hi: ti.template(), cone: ti.template(), dof_start: ti.template(), child_start: ti.template(),
+                    child_list: ti.template(), below: ti.template(), weights: ti.template()):
+    """q clamped to joint j's limits; the cone limits the first child bone leading to an active effector."""
     first_bone = vec3(0.0)
     found = 0
     for cc in range(child_start[j], child_start[j + 1]):
@@ -200,10 +198,7 @@ def finish_joint(i, j, q, base_rot, parent: ti.template(), offset: ti.template()
         if found == 0 and joint_active(i, c, below, weights) != 0:
             first_bone = offset[c].normalized()
             found = 1
-    out = constrain_rotation(kind[j], axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
-    local_rot[i, j] = out
-    world_rot[i, j] = qmul(base_rot, out)
-    fk_after(i, j, parent, offset, local_rot, world_pos, world_rot)
+    return constrain_rotation(kind[j], axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
 
 
 @ti.func
@@ -212,7 +207,7 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
               child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
-              weights: ti.template(), orient: ti.template()):
+              eff_pos: ti.template(), weights: ti.template(), orient: ti.template()):
     """One CCD sweep of character i, deepest joint first, then the orientation pass.
 
     world_pos holds positions relative to the character's root here (see ccd_solve); the pose stays
@@ -220,6 +215,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
     """
     J = parent.shape[0]
     q_root = yaw_quat(root_yaw[i])
+    for e in range(eff_joint.shape[0]):
+        eff_pos[i, e] = world_pos[i, eff_joint[e]]
     for jj in range(J):
         j = J - 1 - jj
         k = kind[j]
@@ -260,13 +257,24 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
             elif k == 1 and p >= 0 and n_j == 1 and n_p == 1 and kind[p] == 3:
                 s = dof_start[j]
                 q = hinge_reach_step(i, q, axes[j, 0], lo[s], hi[s], inv_base, pos_j, world_pos[i, p], single,
-                                     eff_joint, rel_t, world_pos)
+                                     eff_joint, rel_t, eff_pos)
             elif k == 1:
-                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, rel_t, weights, world_pos)
+                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
             else:
-                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, rel_t, weights, world_pos)
-            finish_joint(i, j, q, base_rot, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start,
-                         child_list, below, weights, local_rot, world_pos, world_rot)
+                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
+            q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list, below,
+                                weights)
+            # carry the effectors below j along with its turn (world turn = base q_new q_old^-1 base^-1)
+            turn = qmul(qmul(base_rot, qmul(q, qconj(local_rot[i, j]))), inv_base)
+            for e in range(eff_joint.shape[0]):
+                if below[j, e] != 0:
+                    eff_pos[i, e] = pos_j + qrot(turn, eff_pos[i, e] - pos_j)
+            local_rot[i, j] = q
+    # FK once per sweep: a joint's own position and its parent's rotation only change when an
+    # ancestor turns, which happens after it in this order, so the sweep never reads a stale one
+    world_pos[i, 0] = qrot(q_root, offset[0])
+    world_rot[i, 0] = qmul(q_root, local_rot[i, 0])
+    fk_after(i, 0, parent, offset, local_rot, world_pos, world_rot)
     # orientation targets: swing each effector joint's local axis onto its target direction
     for j in range(J):
         if kind[j] > 0:
@@ -280,8 +288,11 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                     cur = qrot(q, eff_axis[e])
                     want = qrot(qconj(base_rot), orient[i, e])
                     q = qnormalize(qmul(swing(cur, want), q))
-                    finish_joint(i, j, q, base_rot, parent, offset, kind, axes, lo, hi, cone, dof_start,
-                                 child_start, child_list, below, weights, local_rot, world_pos, world_rot)
+                    q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
+                                        below, weights)
+                    local_rot[i, j] = q
+                    world_rot[i, j] = qmul(base_rot, q)
+                    fk_after(i, j, parent, offset, local_rot, world_pos, world_rot)
 
 
 @ti.kernel
@@ -309,6 +320,7 @@ def ccd_solve(
     weights: ndarray(ndim=2),
     orient: ndarray(dtype=vec3, ndim=2),
     rel_t: ndarray(dtype=vec3, ndim=2),
+    eff_pos: ndarray(dtype=vec3, ndim=2),
     max_iterations: ti.i32,
     tolerance: ti.f32,
     error: ndarray(ndim=1),
@@ -320,9 +332,9 @@ def ccd_solve(
     below (J, E) int: 1 where effector e's joint lies in joint j's subtree (j included); reach (E,):
     bone-path length from the root joint to each effector. world_pos and world_rot are recomputed
     from local_rot on entry. targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit
-    directions or zero; rel_t (N, E, 3) scratch: the targets relative to the roots. Outputs: error
-    (N,) final max effector distance, iterations (N,) sweeps applied, stalled (N,) 1 if it stopped
-    improving.
+    directions or zero; rel_t, eff_pos (N, E, 3) scratch: targets and effectors relative to the
+    roots. Outputs: error (N,) final max effector distance, iterations (N,) sweeps applied, stalled
+    (N,) 1 if it stopped improving.
     """
     for i in range(root_pos.shape[0]):
         # work relative to the root, so a character's result does not depend on where it stands
@@ -338,7 +350,8 @@ def ccd_solve(
         stop = 0
         while it < max_iterations and err > tolerance and stop == 0:
             ccd_sweep(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list, eff_joint,
-                      eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, weights, orient)
+                      eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos, weights,
+                      orient)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)
             it += 1
             # stalled: four sweeps in a row that improved the error by less than 0.01 %
