@@ -48,7 +48,8 @@ class TwoBone:
 def _lengths(value, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64) if _numeric(value) else None
     if arr is None or arr.ndim > 1:
-        raise ValueError(f"{name}: expected a positive number or an (N,) array (got {value!r})")
+        got = f"shape {arr.shape}" if arr is not None else repr(value)
+        raise ValueError(f"{name}: expected a positive number or an (N,) array (got {got})")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         bad = arr[~(np.isfinite(arr) & (arr > 0))].flat[0]
         raise ValueError(f"{name}: bone lengths must be finite and positive (got {bad})")
@@ -58,7 +59,8 @@ def _lengths(value, name: str) -> np.ndarray:
 def _vectors(value, name: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64) if _numeric(value) else None
     if arr is None or arr.ndim not in (1, 2) or arr.shape[-1] != 3:
-        raise ValueError(f"{name}: expected shape (3,) or (N, 3) (got {np.shape(value) if arr is not None else value!r})")
+        got = np.shape(value) if arr is not None else repr(value)
+        raise ValueError(f"{name}: expected shape (3,) or (N, 3) (got {got})")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: must be finite (got {arr[~np.isfinite(arr)].flat[0]})")
     return arr
@@ -69,7 +71,7 @@ def _numeric(value) -> bool:
         arr = np.asarray(value)
     except (ValueError, TypeError):
         return False
-    return arr.dtype != object and (np.issubdtype(arr.dtype, np.number)) and not np.issubdtype(arr.dtype, np.complexfloating)
+    return np.issubdtype(arr.dtype, np.number) and not np.issubdtype(arr.dtype, np.complexfloating)
 
 
 def _batch_size(named: dict[str, np.ndarray], vec: set[str]) -> int | None:
@@ -97,7 +99,8 @@ def two_bone_angles(upper, lower, distance):
     lw = _lengths(lower, "lower")
     d = np.asarray(distance, dtype=np.float64) if _numeric(distance) else None
     if d is None or not np.all(np.isfinite(d)) or np.any(d < 0):
-        raise ValueError(f"distance: expected finite numbers >= 0 (got {distance!r})")
+        bad = repr(distance) if d is None else d[~(np.isfinite(d) & (d >= 0))].flat[0]
+        raise ValueError(f"distance: expected finite numbers >= 0 (got {bad})")
     u, lw, d = np.broadcast_arrays(u, lw, d)
     dc = np.clip(d, np.abs(u - lw), u + lw)
     cos_mid = np.clip((u * u + lw * lw - dc * dc) / (2.0 * u * lw), -1.0, 1.0)

@@ -1,4 +1,4 @@
-"""Analytic two-bone IK: bone lengths, reach, mirrored solutions, pole side, scalar reference, degenerate and bad inputs."""
+"""Analytic two-bone IK: lengths, reach, mirrored solutions, pole side, scalar reference, degenerate and bad input."""
 
 import math
 

@@ -240,7 +240,8 @@ def _straighten(kind: str, q, ax, u, v):
         v_p = v - _dot(v, ax)[:, None] * ax
         s_cross = _dot(ax, np.cross(u_p, v_p))
         s_dot = _dot(u_p, v_p)
-        return np.where(((s_cross != 0.0) | (s_dot != 0.0))[:, None], _rotate_about(ax, np.arctan2(s_cross, s_dot), q), q)
+        turned = _rotate_about(ax, np.arctan2(s_cross, s_dot), q)
+        return np.where(((s_cross != 0.0) | (s_dot != 0.0))[:, None], turned, q)
     nu = np.linalg.norm(u, axis=-1, keepdims=True)
     nv = np.linalg.norm(v, axis=-1, keepdims=True)
     sw = swing(u / np.maximum(nu, 1e-300), v / np.maximum(nv, 1e-300))
