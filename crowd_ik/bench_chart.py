@@ -1,0 +1,80 @@
+"""The `crowd-ik bench --plot` chart: solves per second against character count, log-log.
+
+One panel per rig; a solid line per (solver, backend), the NumPy baseline of each solver dashed in
+the same colour. Drawn on a bare matplotlib Figure with the Agg canvas (no pyplot state, no display).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+COLOURS = {"fabrik": "#1f77b4", "dls": "#d62728", "ccd": "#2ca02c"}
+MARKERS = {"cpu": "o", "cuda": "^"}
+
+
+def _series(records: list[dict], rig: str) -> tuple[dict, dict]:
+    """{(solver, arch): [(n, solves/s)]} for Taichi and {solver: [(n, numpy solves/s)]} for the baseline."""
+    taichi, numpy = {}, {}
+    for r in sorted(records, key=lambda r: r["n"]):
+        if r["rig"] != rig:
+            continue
+        taichi.setdefault((r["solver"], r["arch"]), []).append((r["n"], r["solves_per_s"]))
+        if r.get("numpy_solves_per_s"):
+            points = numpy.setdefault(r["solver"], [])
+            if all(n != r["n"] for n, _ in points):
+                points.append((r["n"], r["numpy_solves_per_s"]))
+    return taichi, numpy
+
+
+def _count(x: float) -> str:
+    """100 -> '100', 10000 -> '10k', 1000000 -> '1M'."""
+    for scale, suffix in ((1e6, "M"), (1e3, "k")):
+        if x >= scale:
+            return f"{x / scale:g}{suffix}"
+    return f"{x:g}"
+
+
+def draw(result: dict, path: str | Path, dpi: int = 120) -> None:
+    """Draw the chart of a bench result (the --json structure) to `path` (format from its suffix)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    records = result["records"]
+    rigs = list(dict.fromkeys(r["rig"] for r in records))
+    if not rigs:
+        raise ValueError("plot: no benchmark records to draw")
+    fig = Figure(figsize=(6.4 * len(rigs), 5.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(rigs), squeeze=False)[0]
+    for ax, rig in zip(axes, rigs):
+        taichi, numpy = _series(records, rig)
+        for (solver, arch), pts in taichi.items():
+            n, y = zip(*pts)
+            ax.plot(n, y, color=COLOURS.get(solver, "k"), marker=MARKERS.get(arch, "s"), lw=2,
+                    label=f"{solver} (Taichi {arch})")
+        for solver, pts in numpy.items():
+            n, y = zip(*pts)
+            ax.plot(n, y, color=COLOURS.get(solver, "k"), marker="x", ls="--", lw=1.5, label=f"{solver} (NumPy)")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ns = sorted({r["n"] for r in records if r["rig"] == rig})
+        ax.xaxis.set_major_locator(FixedLocator(ns))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: _count(x)))
+        ax.xaxis.set_minor_locator(NullLocator())
+        if len(ns) == 1:
+            ax.set_xlim(ns[0] / 2, ns[0] * 2)
+        ax.set_xlabel("characters N")
+        ax.set_ylabel("solves per second")
+        ax.set_title(rig)
+        ax.grid(True, which="major", alpha=0.4)
+        ax.grid(True, which="minor", alpha=0.15)
+        ax.legend(fontsize="small", loc="best")
+    meta = result.get("meta", {})
+    cores = meta.get("usable_cores") or meta.get("cores")
+    fig.suptitle(f"crowd-ik bench: IK solves/s vs characters - {meta.get('cpu_model', '?')}, {cores} cores "
+                 f"(best of {meta.get('settings', {}).get('repeats', '?')})", fontsize="medium")
+    fig.savefig(path, dpi=dpi)
+
+
+__all__ = ["draw"]
