@@ -73,11 +73,17 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--chars", default=None, help="comma-separated character counts (default 100,1000,10000,100000)")
     bench.add_argument("--solver", default=None, help="comma-separated: fabrik,dls,ccd (default all)")
     bench.add_argument("--rig", default=None, help="comma-separated: chain16,humanoid (default both)")
-    bench.add_argument("--arch", default=None, help="comma-separated: cpu,cuda (default cpu, plus cuda when present)")
+    bench.add_argument("--arch", default=None, help="comma-separated: cpu,cuda (default cpu, plus cuda when present; "
+                       "cuda without a GPU is refused with exit 2)")
     bench.add_argument("--threads", type=int, default=None, help="CPU threads for Taichi (default: all cores)")
     bench.add_argument("--json", default=None, metavar="F.json", help="write the results as JSON")
     bench.add_argument("--plot", default=None, metavar="F.png", help="write a log-log chart")
     bench.add_argument("--compare", default=None, metavar="OLD.json", help="print the change against an earlier --json")
+    bench.add_argument("--repeats", type=int, default=None, help="timed repeats per cell, best kept (default 3; --quick 1)")
+    bench.add_argument("--baseline-budget", type=float, default=None, metavar="S",
+                       help="seconds of NumPy baseline per cell, 0 to skip it (default 10; --quick 1)")
+    bench.add_argument("--game-chars", type=int, default=None, metavar="N",
+                       help="humanoids in the warm-start game workload, 0 to skip it (default 10000; --quick 256)")
     bench.add_argument("--quick", action="store_true", help="small defaults for a smoke test (explicit flags win)")
     bench.add_argument("--force", action="store_true", help="overwrite existing outputs")
     bench.set_defaults(handler="crowd_ik.bench:run")
