@@ -18,7 +18,7 @@ _LAZY = {
     "Crowd": ("crowd_ik.crowd", "Crowd"),
     "SolveReport": ("crowd_ik.crowd", "SolveReport"),
     "Status": ("crowd_ik.crowd", "Status"),
-    "two_bone": ("crowd_ik.two_bone", "two_bone"),
+    "two_bone": ("crowd_ik.analytic", "two_bone"),
     "load_scene": ("crowd_ik.scene", "load_scene"),
     "Scene": ("crowd_ik.scene", "Scene"),
     "World": ("crowd_ik.game", "World"),

@@ -1,4 +1,4 @@
-"""Scalar reference for crowd_ik.two_bone: one limb at a time, with the math module only.
+"""Scalar reference for crowd_ik.analytic.two_bone: one limb at a time, with the math module only.
 
 Derived independently of the batched version: the middle joint lies on the circle where the
 sphere of radius ``upper`` about the root meets the sphere of radius ``lower`` about the (clamped)

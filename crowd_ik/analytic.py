@@ -18,8 +18,6 @@ Degenerate inputs never give NaN.
 
 from __future__ import annotations
 
-import sys
-import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,16 +171,3 @@ def two_bone(upper, lower, target, pole, solution: int = +1, root=None) -> TwoBo
         out = {k: v[0] for k, v in out.items()}
         out["reachable"] = bool(out["reachable"])
     return TwoBone(**out)
-
-
-class _CallableModule(types.ModuleType):
-    """The package exports the function as ``crowd_ik.two_bone``, but importing this module binds the
-    module to that same name; calling the module therefore calls the function."""
-
-    def __call__(self, *args, **kwargs) -> TwoBone:
-        return two_bone(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule
-
-__all__ = ["TwoBone", "two_bone", "two_bone_angles"]
