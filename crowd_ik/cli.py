@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     play.set_defaults(handler="crowd_ik.play:run")
 
     mouse = sub.add_parser("mouse", help="single-character IK: drag the target with the mouse, or replay a path to video")
-    mouse.add_argument("--bones", type=int, default=4, help="planar chain bones (default 4)")
+    mouse.add_argument("--bones", type=int, default=None, help="planar chain bones (default 4; with --keyframes, the file's angle count)")
     mouse.add_argument("--rig", choices=("chain", "humanoid"), default="chain", help="chain (planar) or humanoid (3D)")
     mouse.add_argument("--method", choices=("newton", "dls", "fabrik", "ccd", "follow"), default="dls", help="IK method (default dls)")
     mouse.add_argument("--limits", action="store_true", help="honour joint limits")
