@@ -15,6 +15,10 @@ from crowd_ik.kernels.quat import (
 )
 
 ndarray = ti.types.ndarray
+# sine of the bend FABRIK proposes for a hinge limb: below MIN the ball joint above keeps its twist,
+# above FULL it turns the hinge axis fully onto the proposed plane (linear in between)
+TWIST_MIN_BEND = 0.01
+TWIST_FULL_BEND = 0.1
 
 
 @ti.func
@@ -106,7 +110,8 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
             u = qrot(inv_base, work[i, c] - pos_j)
             v = qrot(inv_base, work[i, g] - work[i, c])
             n = ti.math.cross(u, v)
-            if n.norm() > 1e-4 * u.norm() * v.norm():
+            bend = n.norm() / ti.max(u.norm() * v.norm(), 1e-12)  # sine of the proposed bend
+            if bend > TWIST_MIN_BEND:
                 n = n.normalized()
                 s = dof_start[c]
                 axis = qrot(out, axes[c, 0])
@@ -121,7 +126,10 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
                 a_p = axis - axis.dot(b) * b
                 n_p = n - n.dot(b) * b
                 if a_p.norm() > 1e-6 and n_p.norm() > 1e-6:
-                    ang = ti.atan2(b.dot(ti.math.cross(a_p, n_p)), a_p.dot(n_p))
+                    # full twist once the bend is clear; fading out toward nearly straight limbs, whose
+                    # plane is numerical noise
+                    ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+                    ang = ramp * ti.atan2(b.dot(ti.math.cross(a_p, n_p)), a_p.dot(n_p))
                     h = 0.5 * ang
                     sh = ti.sin(h)
                     out = qnormalize(qmul(vec4(b.x * sh, b.y * sh, b.z * sh, ti.cos(h)), out))

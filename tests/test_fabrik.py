@@ -100,6 +100,18 @@ def test_humanoid_limits_always_hold_and_most_targets_are_reached():
     assert np.mean(rep.converged) >= 0.9
 
 
+@pytest.mark.parametrize("k", range(1, 5))
+def test_moving_one_limb_keeps_the_held_effectors(k):
+    """Dragging one hand or foot 5 cm from rest, the other effectors held where they are, reaches all of them."""
+    h = cik.Rig.humanoid()
+    crowd = cik.Crowd(h, n=1)
+    targets = crowd.effector_positions().copy()
+    targets[0, k] += (0.0, 0.05, 0.05)
+    rep = crowd.solve(targets, max_iterations=50, tolerance=2e-3)
+    assert rep.status[0] == Status.CONVERGED
+    assert np.all(np.linalg.norm(crowd.effector_positions()[0] - targets[0], axis=1) <= 2e-3)
+
+
 def test_orientation_target_turns_the_sole_flat():
     h = cik.Rig.humanoid()
     crowd = cik.Crowd(h, n=20, spacing=2.0)

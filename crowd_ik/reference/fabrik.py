@@ -15,6 +15,8 @@ from crowd_ik.reference.quat import (
 from crowd_ik.reference.fk import yaw_quat
 from crowd_ik.rig import Rig
 
+TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1  # as kernels/fabrik.py
+
 
 def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
     d = np.linalg.norm(pos[:, rig.arrays["eff_joint"]] - targets, axis=-1)
@@ -82,7 +84,8 @@ def _hinge_twist(rig, j, q, inv_base, pos_j, work, acc):
         v = qrot(inv_base, work[rows, gi] - work[:, k])
         n = np.cross(u, v)
         nn = np.linalg.norm(n, axis=-1)
-        sel &= nn > 1e-4 * np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1)
+        bend = nn / np.maximum(np.linalg.norm(u, axis=-1) * np.linalg.norm(v, axis=-1), 1e-12)
+        sel &= bend > TWIST_MIN_BEND
         n = n / np.maximum(nn, 1e-30)[:, None]
         axis = qrot(q, np.broadcast_to(np.array(rig.joints[k].axes[0]), q.shape[:-1] + (3,)))
         lo, hi = rig.joints[k].lo[0], rig.joints[k].hi[0]
@@ -96,7 +99,8 @@ def _hinge_twist(rig, j, q, inv_base, pos_j, work, acc):
         a_p = axis - np.sum(axis * b, -1, keepdims=True) * b
         n_p = n - np.sum(n * b, -1, keepdims=True) * b
         sel &= (np.linalg.norm(a_p, axis=-1) > 1e-6) & (np.linalg.norm(n_p, axis=-1) > 1e-6)
-        ang = np.arctan2(np.sum(b * np.cross(a_p, n_p), -1), np.sum(a_p * n_p, -1))
+        ramp = np.minimum(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+        ang = ramp * np.arctan2(np.sum(b * np.cross(a_p, n_p), -1), np.sum(a_p * n_p, -1))
         turned = qnormalize(qmul(axis_angle(b, ang), q))
         out = np.where(sel[:, None], turned, out)
     return out
