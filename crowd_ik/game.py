@@ -413,19 +413,38 @@ def character_layout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return roots.astype(np.float32), yaw.astype(np.float32)
 
 
-def shooter_layout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Roots (S, 3) and yaw (S,) of the shooters: a ring of shooters.radius (offset half a place,
-    so none stands straight in front of the default camera), or a line 2 m apart at z = -radius."""
+RING_PHASES = (0.5, 0.0, 0.25, 0.75, 0.125, 0.375, 0.625, 0.875)  # in units of the shooters' spacing
+
+
+def shooter_layout(scene: Scene, camera=None) -> tuple[np.ndarray, np.ndarray]:
+    """Roots (S, 3) on the ground and yaw (S,) of the shooters, facing the centre (a ring) or +z (a line).
+
+    ring: S places on a circle of shooters.radius, turned by the first of RING_PHASES that puts the
+    most shooters wholly in the camera's view (feet and head inside the frame), so that as many
+    as possible are seen shooting; line: 2 m apart at z = -radius.
+    """
     s = scene.shooters
     k = np.arange(s.count)
-    if s.placement == "ring":
-        theta = 2.0 * math.pi * (k + 0.5) / s.count
-        roots = np.stack([s.radius * np.sin(theta), np.zeros(s.count), s.radius * np.cos(theta)], axis=1)
-        yaw = theta + math.pi
-    else:
+    if s.placement == "line":
         roots = np.stack([(k - (s.count - 1) / 2.0) * 2.0, np.zeros(s.count), np.full(s.count, -s.radius)], axis=1)
-        yaw = np.zeros(s.count)
-    return roots.astype(np.float32), yaw.astype(np.float32)
+        return roots.astype(np.float32), np.zeros(s.count, np.float32)
+    best, best_seen = RING_PHASES[0], -1
+    for phase in RING_PHASES if camera is not None else RING_PHASES[:1]:
+        theta = 2.0 * math.pi * (k + phase) / s.count
+        feet = np.stack([s.radius * np.sin(theta), np.zeros(s.count), s.radius * np.cos(theta)], axis=1)
+        if camera is None:
+            break
+        head = feet + [0.0, 1.8 * scene.characters.scale, 0.0]
+        inside = np.ones(s.count, bool)
+        for points in (feet, head):
+            pix, _ = camera.project(points)
+            inside &= ((pix[:, 0] >= 0) & (pix[:, 0] <= camera.width - 1)
+                       & (pix[:, 1] >= 0) & (pix[:, 1] <= camera.height - 1))
+        if int(inside.sum()) > best_seen:
+            best, best_seen = phase, int(inside.sum())
+    theta = 2.0 * math.pi * (k + best) / s.count
+    roots = np.stack([s.radius * np.sin(theta), np.zeros(s.count), s.radius * np.cos(theta)], axis=1)
+    return roots.astype(np.float32), (theta + math.pi).astype(np.float32)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -491,7 +510,9 @@ class World:
         self._caps_prev = None
 
         # shooters: humanoids at their rest scale, aiming with the right hand
-        self.shooter_ground, self.shooter_yaw = shooter_layout(scene)
+        cam = scene.camera
+        self.camera = Camera(cam.position, cam.look_at, cam.fov_deg, scene.video.width, scene.video.height)
+        self.shooter_ground, self.shooter_yaw = shooter_layout(scene, self.camera)
         self.shooter_roots = self.shooter_ground + np.float32([0.0, hb.rest_root_y, 0.0])
         self.shooters = Crowd(hb.rig, n=S, seed=scene.seed)
         self.shooters.set_angles(hb.stance)
@@ -563,8 +584,6 @@ class World:
         self._hud_ms = {"ik": None, "simulation": None, "render": None}
 
         # drawing
-        cam = scene.camera
-        self.camera = Camera(cam.position, cam.look_at, cam.fov_deg, scene.video.width, scene.video.height)
         self.max_capsules = N * B + S * (hb.n_bones + 1) + hb.n_bones + M
         self._renderer = None  # made on the first render(): export and timing runs never draw
         self._update_player(0.0)
