@@ -20,7 +20,7 @@ from crowd_ik import runtime
 from crowd_ik.output import atomic_path, check_writable
 from crowd_ik.scene import load_scene
 
-TEMPLATE_COUNT = (10, 10)  # template capsule resolution: (around, along)
+TEMPLATE_COUNT = (8, 8)  # template capsule resolution (trimesh count): 66 vertices a capsule
 
 
 def _template():
