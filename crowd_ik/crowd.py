@@ -337,21 +337,21 @@ class Crowd:
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
         D, J, R = max(rig.n_dof, 1), rig.n_joints, 5 * rig.n_effectors
-        settings = dls_settings(rig, params["damping"])
+        settings = dls_settings(rig, params["damping"], params["joint_weights"])
         joint_w = np.zeros(D + 1, np.float32)
         joint_w[: rig.n_dof] = 1.0 if params["joint_weights"] is None else params["joint_weights"]
-        eff_lim = self.scratch("dls_eff_lim", ti.f32, settings["eff_lim"].shape)
-        eff_lim.from_numpy(settings["eff_lim"])
-        jw = self.scratch("dls_joint_w", ti.f32, (D + 1,))
-        jw.from_numpy(joint_w)
-        jmode = self.scratch("dls_jmode", ti.i32, (J,))
-        jmode.from_numpy(settings["jmode"])
+        small = {}  # per-solve settings: a few dozen numbers
+        for name, value in (("eff_lim", settings["eff_lim"]), ("joint_w", joint_w), ("jmode", settings["jmode"]),
+                            ("lo", settings["lo32"]), ("hi", settings["hi32"])):
+            small[name] = self.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
+            small[name].from_numpy(value)
         dls.dls_solve(
-            ra["parent"], ra["offset"], ra["kind"], jmode, ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
-            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"], eff_lim, jw,
-            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
-            self._targets, self._weights, self._orient,
-            self.scratch("dls_rel_pos", ti.math.vec3, (N, J)), self.scratch("dls_qwork", ti.math.vec4, (N, 2, J)),
+            ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], ra["cone"],
+            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"],
+            small["eff_lim"], small["joint_w"], self.root_pos, self.root_yaw, self.local_rot, self.world_pos,
+            self.world_rot, self._targets, self._weights, self._orient,
+            self.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
+            self.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
             self.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
             self.scratch("dls_jac", ti.f32, (N, R, D + 1)), self.scratch("dls_rows", ti.f32, (N, 2, R)),
             self.scratch("dls_sys", ti.f32, (N, R, R)),

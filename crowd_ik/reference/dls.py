@@ -1,0 +1,480 @@
+"""NumPy twin of kernels/dls.py: damped least squares with LM damping and an active set, batched over characters.
+
+The same algorithm as the kernel (read its docstring for the maths), vectorised over N with the
+R x R systems solved by np.linalg.solve on (N, R, R) stacks; loops run over joints, effectors and
+iterations only. Used by the tests as the kernel's oracle and by the benchmark as the NumPy
+baseline. :func:`dls_settings` holds the constants both share (so they cannot drift apart).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from crowd_ik.reference.fk import forward_kinematics
+from crowd_ik.reference.quat import (
+    axis_angle, constrain_rotation, joint_angles, joint_quat, qconj, qmul, qnormalize, qrot, quat_to_euler_xyz,
+)
+from crowd_ik.rig import Rig
+
+# Constants of the solver, shared with kernels/dls.py (which imports them: one source of truth).
+ERROR_CLAMP = 0.4  # d_max = 0.4 * mean bone length * sqrt(bones from the root), Buss & Kim 2005
+DAMPING = 0.05  # default damping = 0.05 * L
+DAMPING_MIN = 1e-3  # damping below 1e-3 * L is raised to it (keeps the float32 Cholesky positive definite)
+ORI_CLAMP = 0.5  # radians: the largest orientation error one step aims to remove
+STALL_AFTER = 5  # rejected or flat attempts in a row that make a stall
+FLAT = 1e-4  # an accepted step is flat if it removes less than this fraction of F
+WINDOW = 6  # accepted steps over which F must fall by PROGRESS, or the solve counts as stalled
+PROGRESS = 0.05
+LAM_CAP = 1e3  # lam beyond LAM_CAP * L is a stall
+LIMIT_EPS = 1e-6  # radians: a DOF this close to a limit counts as on it
+EULER_B_MAX = 0.5 * np.pi - 0.01  # an Euler-angle ball joint's middle angle stays this far from gimbal lock
+KICK = 0.5  # radians: an escape moves DOFs stuck on a limit this far inward (at most half their range)
+MAX_ESCAPES = 3  # escapes per solve
+ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its kick
+
+
+def dls_settings(rig: Rig, damping: float | None = None, joint_weights=None) -> dict:
+    """Constants of a DLS solve of ``rig``: L, the damping (metres), the per-effector reach and d_max, joint modes.
+
+    L (``length``, metres) is the mean reach of the effectors (root to effector along the bones): it
+    converts orientation errors (radians) into metres and sets the default damping 0.05 * L. d_max =
+    0.4 * mean bone length * sqrt(number of bones) of each effector's path = 0.4 * reach / sqrt(bones).
+    jmode (J,): 0 fixed; 1 solved in its angles (hinge, universal, and a ball joint with box limits
+    or unequal joint weights, in Euler angles); 2 any other ball joint, solved by world-axis rotation
+    vectors on its quaternion (no gimbal lock), its joint weight scaling all three axes alike.
+    lo, hi (D,) float64: the limits the solver applies: the rig's, with the middle Euler angle of an
+    angle-mode ball joint kept 0.01 rad inside +-pi/2 (off gimbal lock, its angles are then exactly
+    the ones Crowd.angles() reports);
+    lo32, hi32 (D+1,) float32 the same for the kernel (+-1e30 for none, one padding entry).
+    """
+    reach = np.asarray(rig.reach, np.float64)
+    bones = np.array([len(rig.path_to_root(e.joint)) - 1 for e in rig.effectors], np.float64)
+    length = float(reach.mean()) if reach.mean() > 0 else float(rig.bone_lengths.max())
+    d_max = ERROR_CLAMP * reach / np.sqrt(np.maximum(bones, 1.0))
+    lam = DAMPING * length if damping is None else float(damping)
+    lam = max(lam, DAMPING_MIN * length)
+    eff_lim = np.stack([reach, d_max], axis=1).astype(np.float32)
+    lo, hi = rig.angle_limits()
+    jw = np.ones(rig.n_dof) if joint_weights is None else np.asarray(joint_weights, np.float64)
+    jmode = np.zeros(rig.n_joints, np.int32)
+    for j, joint in enumerate(rig.joints):
+        s, k = int(rig.dof_start[j]), joint.dof
+        limited = bool(np.any(np.isfinite(lo[s : s + k])) or np.any(np.isfinite(hi[s : s + k])))
+        uneven = k == 3 and not np.all(jw[s : s + k] == jw[s])
+        jmode[j] = 0 if k == 0 else 1 if (k < 3 or limited or uneven) else 2
+        if k == 3 and jmode[j] == 1:
+            lo[s + 1], hi[s + 1] = max(lo[s + 1], -EULER_B_MAX), min(hi[s + 1], EULER_B_MAX)
+    big = 1e30
+    lo32 = np.concatenate([np.clip(lo, -big, big), [0.0]]).astype(np.float32)
+    hi32 = np.concatenate([np.clip(hi, -big, big), [0.0]]).astype(np.float32)
+    return dict(length=length, damping=lam, eff_lim=np.ascontiguousarray(eff_lim), jmode=jmode, lo=lo, hi=hi,
+                lo32=lo32, hi32=hi32)
+
+
+def qlog(q: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vectors of unit quaternions (..., 4)."""
+    q = np.where(q[..., 3:] < 0, -q, q)
+    v = q[..., :3]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    scale = np.where(s > 1e-7, 2.0 * np.arctan2(s, q[..., 3:]) / np.maximum(s, 1e-30), 2.0)
+    return v * scale
+
+
+def qexp(r: np.ndarray) -> np.ndarray:
+    a = np.linalg.norm(r, axis=-1, keepdims=True)
+    s = np.where(a > 1e-7, np.sin(0.5 * a) / np.maximum(a, 1e-30), 0.5)
+    c = np.where(a > 1e-7, np.cos(0.5 * a), 1.0)
+    return qnormalize(np.concatenate([r * s, c], axis=-1))
+
+
+def perpendicular(a: np.ndarray) -> np.ndarray:
+    u = np.cross(a, np.array([1.0, 0.0, 0.0]))
+    alt = np.cross(a, np.array([0.0, 1.0, 0.0]))
+    u = np.where(np.sum(u * u, -1, keepdims=True) < 0.01, alt, u)
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def swing_vector(a: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Rotation vectors of the minimal rotations taking unit a to unit t."""
+    c = np.cross(a, t)
+    s = np.linalg.norm(c, axis=-1, keepdims=True)
+    dot = np.sum(a * t, -1, keepdims=True)
+    ang = np.arctan2(s, dot)
+    axis = np.where(s > 1e-7, c / np.maximum(s, 1e-30), np.where(dot < 0, perpendicular(a), 0.0))
+    return axis * ang
+
+
+class _Rig:
+    """Per-joint facts the solver loops over."""
+
+    def __init__(self, rig: Rig, settings: dict):
+        self.rig = rig
+        jmode, lo, hi = settings["jmode"], settings["lo"], settings["hi"]
+        self.joints = []
+        for j, joint in enumerate(rig.joints):
+            k, s = joint.dof, int(rig.dof_start[j])
+            kids = rig.children[j]
+            bone = np.array(rig.joints[kids[0]].offset) / rig.bone_lengths[kids[0]] if kids else np.zeros(3)
+            self.joints.append(dict(
+                k=k, s=s, parent=joint.parent, angle=bool(jmode[j] == 1),
+                axes=np.array(joint.axes or [(0.0, 0.0, 1.0)] * 2), cone=joint.cone or 0.0, bone=bone,
+                lo=lo[s : s + k], hi=hi[s : s + k],
+            ))
+
+
+def _parent_rot(jt, q_root, wrot):
+    return q_root if jt["parent"] < 0 else wrot[:, jt["parent"]]
+
+
+def _yaw(yaw):
+    return axis_angle(np.array([0.0, 1.0, 0.0]), yaw)
+
+
+def _set_joint(jt, theta, rot, j):
+    """Rotation of an angle-mode joint from its clamped angles; a cone projects a ball joint (angles re-read)."""
+    k, s = jt["k"], jt["s"]
+    a = np.clip(theta[:, s : s + k], jt["lo"], jt["hi"])
+    q = joint_quat(k, jt["axes"], a)
+    if k == 3 and jt["cone"] > 0:
+        q = constrain_rotation(3, jt["axes"], q, jt["lo"], jt["hi"], jt["cone"], jt["bone"])
+        a = quat_to_euler_xyz(q)
+    theta[:, s : s + k] = a
+    rot[:, j] = q
+
+
+def _fk(rig, yaw, rot):
+    return forward_kinematics(rig, np.zeros((rot.shape[0], 3)), yaw, rot)
+
+
+def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w):
+    """(F, max position error, max orientation error * L); F's position terms as in the kernel (minus beyond^2)."""
+    rig = R.rig
+    n = tgt.shape[0]
+    f = np.zeros(n)
+    perr = np.zeros(n)
+    oerr = np.zeros(n)
+    eff_axis = rig.arrays["eff_axis"].astype(np.float64)
+    for e, eff in enumerate(rig.effectors):
+        w = weights[:, e]
+        on = w > 0
+        d = tgt[:, e] - st["pos"][:, eff.joint]
+        dd = np.sum(d * d, -1)
+        r = tgt[:, e] - st["pos"][:, 0]
+        dist = np.linalg.norm(r, axis=-1)
+        reach = float(eff_lim[e, 0])
+        q = st["pos"][:, eff.joint] - st["pos"][:, 0]
+        qn = np.linalg.norm(q, axis=-1)
+        far = 2.0 * (dist * reach - np.sum(r * q, -1)) - (reach - qn) * (reach + qn)
+        f += np.where(on, w * np.where(dist > reach, far, dd), 0.0)
+        perr = np.where(on, np.maximum(perr, np.sqrt(dd)), perr)
+        has = on & (eff.axis is not None) & (np.sum(orient[:, e] ** 2, -1) > 0)
+        if np.any(has):
+            a = qrot(st["wrot"][:, eff.joint], np.broadcast_to(eff_axis[e], (n, 3)))
+            ang = length * np.linalg.norm(swing_vector(a, orient[:, e]), axis=-1)
+            f += np.where(has, w * ang * ang, 0.0)
+            oerr = np.where(has, np.maximum(oerr, ang), oerr)
+    if rest_w > 0 or vel_w > 0:
+        for j, jt in enumerate(R.joints):
+            k, s = jt["k"], jt["s"]
+            if k == 0:
+                continue
+            if jt["angle"]:
+                th = st["theta"][:, s : s + k]
+                dv = th - st["theta0"][:, s : s + k]
+                f += rest_w * np.sum(th * th, -1) + vel_w * np.sum(dv * dv, -1)
+            else:
+                q = st["rot"][:, j]
+                f += rest_w * np.sum(qlog(q) ** 2, -1) + vel_w * np.sum(qlog(qmul(q, qconj(st["q0"][:, j]))) ** 2, -1)
+    return f, perr, oerr
+
+
+def _axes(jt, base, theta):
+    """World DOF axes of a joint: list of (n, 3)."""
+    n = base.shape[0]
+    k, s = jt["k"], jt["s"]
+    ex, ey, ez = (np.broadcast_to(v, (n, 3)) for v in np.eye(3))
+    if not jt["angle"]:
+        return [ex, ey, ez]
+    ax = jt["axes"]
+    if k == 1:
+        return [qrot(base, np.broadcast_to(ax[0], (n, 3)))]
+    if k == 2:
+        return [qrot(base, np.broadcast_to(ax[0], (n, 3))),
+                qrot(qmul(base, axis_angle(ax[0], theta[:, s])), np.broadcast_to(ax[1], (n, 3)))]
+    rx = qmul(base, axis_angle(np.eye(3)[0], theta[:, s]))
+    return [qrot(base, ex), qrot(rx, ey), qrot(qmul(rx, axis_angle(np.eye(3)[1], theta[:, s + 1])), ez)]
+
+
+def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w):
+    """(jac (n, 5E, D), aimed error (n, 5E), g (n, D)); rows of inactive effectors/orientations are zero."""
+    rig = R.rig
+    n, D, E = tgt.shape[0], rig.n_dof, rig.n_effectors
+    jac = np.zeros((n, 5 * E, D))
+    err = np.zeros((n, 5 * E))
+    pos, wrot, theta = st["pos"], st["wrot"], st["theta"]
+    q_root = _yaw(st["yaw"])
+    eff_axis = rig.arrays["eff_axis"].astype(np.float64)
+    axes_of = {}
+    for e, eff in enumerate(rig.effectors):
+        w = weights[:, e]
+        on = w > 0
+        sw = np.sqrt(np.maximum(w, 0.0))[:, None]
+        reach, dmax = float(eff_lim[e, 0]), float(eff_lim[e, 1])
+        p_eff = pos[:, eff.joint]
+        v = tgt[:, e] - pos[:, 0]
+        dist = np.linalg.norm(v, axis=-1, keepdims=True)
+        aim = np.where(dist > reach + dmax, pos[:, 0] + v * ((reach + dmax) / np.maximum(dist, 1e-30)), tgt[:, e])
+        d = aim - p_eff
+        dn = np.linalg.norm(d, axis=-1, keepdims=True)
+        d = np.where(dn > dmax, d * (dmax / np.maximum(dn, 1e-30)), d)
+        r = 5 * e
+        err[:, r : r + 3] = np.where(on[:, None], sw * d, 0.0)
+        has = on & (eff.axis is not None) & (np.sum(orient[:, e] ** 2, -1) > 0)
+        if np.any(has):
+            a = qrot(wrot[:, eff.joint], np.broadcast_to(eff_axis[e], (n, 3)))
+            a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+            rv = swing_vector(a, orient[:, e])
+            ang = np.linalg.norm(rv, axis=-1, keepdims=True)
+            rv = np.where(ang > ORI_CLAMP, rv * (ORI_CLAMP / np.maximum(ang, 1e-30)), rv)
+            u1 = perpendicular(a)
+            u2 = np.cross(a, u1)
+            scale = np.where(has, sw[:, 0] * length, 0.0)
+            err[:, r + 3] = scale * np.sum(rv * u1, -1)
+            err[:, r + 4] = scale * np.sum(rv * u2, -1)
+        for jn in rig.path_to_root(eff.joint):
+            jt = R.joints[jn]
+            if jt["k"] == 0:
+                continue
+            if jn not in axes_of:
+                axes_of[jn] = _axes(jt, _parent_rot(jt, q_root, wrot), theta)
+            lever = p_eff - pos[:, jn]
+            for c, col in enumerate(axes_of[jn]):
+                jac[:, r : r + 3, jt["s"] + c] = np.where(on[:, None], sw * np.cross(col, lever), 0.0)
+                if np.any(has):
+                    scale = np.where(has, sw[:, 0] * length, 0.0)
+                    jac[:, r + 3, jt["s"] + c] = scale * np.sum(col * u1, -1)
+                    jac[:, r + 4, jt["s"] + c] = scale * np.sum(col * u2, -1)
+    g = np.zeros((n, D))
+    if rest_w > 0 or vel_w > 0:
+        for j, jt in enumerate(R.joints):
+            k, s = jt["k"], jt["s"]
+            if k == 0:
+                continue
+            if jt["angle"]:
+                th = theta[:, s : s + k]
+                g[:, s : s + k] = -(rest_w * th + vel_w * (th - st["theta0"][:, s : s + k]))
+            else:
+                base = _parent_rot(jt, q_root, wrot)
+                q = st["rot"][:, j]
+                rho = qrot(base, qlog(q))
+                nu = qrot(base, qlog(qmul(q, qconj(st["q0"][:, j]))))
+                g[:, s : s + 3] = -(rest_w * rho + vel_w * nu)
+    return jac, err, g
+
+
+def _solve(jac, err, g, lam2, free, joint_w, rest_w, vel_w):
+    """Step (n, D) = M g + M' J^T (J M' J^T + lam^2 I)^-1 (e - J M g)."""
+    w = joint_w[None, :] * free
+    den = lam2[:, None] + w * (rest_w + vel_w)
+    mp = w * lam2[:, None] / den
+    mg = w * g / den
+    a = np.einsum("nrd,nd,nsd->nrs", jac, mp, jac) + lam2[:, None, None] * np.eye(jac.shape[1])
+    b = err - np.einsum("nrd,nd->nr", jac, mg)
+    y = np.linalg.solve(a, b[..., None])[..., 0]
+    return mg + mp * np.einsum("nrd,nr->nd", jac, y)
+
+
+def _freeze(R: _Rig, theta, step, free):
+    """Freeze free angle DOFs on a limit whose step points outward; returns which characters changed."""
+    changed = np.zeros(theta.shape[0], bool)
+    for jt in R.joints:
+        if jt["k"] == 0 or not jt["angle"]:
+            continue
+        for c in range(jt["k"]):
+            d = jt["s"] + c
+            out = (free[:, d] > 0) & (((theta[:, d] <= jt["lo"][c] + LIMIT_EPS) & (step[:, d] < 0))
+                                      | ((theta[:, d] >= jt["hi"][c] - LIMIT_EPS) & (step[:, d] > 0)))
+            free[:, d] = np.where(out, 0.0, free[:, d])
+            changed |= out
+    return changed
+
+
+def _apply(R: _Rig, st, step):
+    """New (theta, rot, pos, wrot) after the step: clamped, cones projected, FK."""
+    theta = st["theta"] + 0.0
+    rot = st["rot"].copy()
+    q_root = _yaw(st["yaw"])
+    for j, jt in enumerate(R.joints):
+        k, s = jt["k"], jt["s"]
+        if k == 0:
+            continue
+        if jt["angle"]:
+            theta[:, s : s + k] += step[:, s : s + k]
+            _set_joint(jt, theta, rot, j)
+        else:
+            base = _parent_rot(jt, q_root, st["wrot"])
+            q = qnormalize(qmul(qexp(qrot(qconj(base), step[:, s : s + 3])), rot[:, j]))
+            if jt["cone"] > 0:
+                q = constrain_rotation(3, jt["axes"], q, jt["lo"], jt["hi"], jt["cone"], jt["bone"])
+            rot[:, j] = q
+    pos, wrot = _fk(R.rig, st["yaw"], rot)
+    return dict(st, theta=theta, rot=rot, pos=pos, wrot=wrot)
+
+
+def _take(st, idx):
+    return {k: v[idx] for k, v in st.items()}
+
+
+def _kick(R: _Rig, theta, free, joint_w):
+    """Escape step (n, D): every weighted angle DOF frozen on a limit moves inward by min(KICK, half its range)."""
+    step = np.zeros_like(theta)
+    for jt in R.joints:
+        if jt["k"] == 0 or not jt["angle"]:
+            continue
+        for c in range(jt["k"]):
+            d = jt["s"] + c
+            lo, hi = jt["lo"][c], jt["hi"][c]
+            size = min(KICK, 0.5 * (hi - lo))
+            frozen = (free[:, d] == 0) & (joint_w[d] > 0) & (size > 0)
+            step[:, d] = np.where(frozen & (theta[:, d] <= lo + LIMIT_EPS), size,
+                                  np.where(frozen & (theta[:, d] >= hi - LIMIT_EPS), -size, 0.0))
+    return step
+
+
+def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
+              tolerance=1e-3, damping=None, rest_weight=0.0, velocity_weight=0.0, joint_weights=None):
+    """Solve N characters from local rotations rot (N, J, 4); returns (rot, world_pos, error, iterations, stalled).
+
+    root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world metres; weights (N, E) (default ones);
+    orientations (N, E, 3) unit directions or zero; joint_weights (D,) (default ones). The other
+    arguments as in Crowd.solve(method="dls"). Float64 throughout; each pass of the loop below is
+    one pass of the kernel's per-character loop, over every character still running.
+    """
+    joint_w = np.ones(rig.n_dof) if joint_weights is None else np.asarray(joint_weights, np.float64)
+    settings = dls_settings(rig, damping, joint_w)
+    R = _Rig(rig, settings)
+    root_pos = np.asarray(root_pos, np.float64)
+    N, E, D = root_pos.shape[0], rig.n_effectors, rig.n_dof
+    yaw = np.asarray(root_yaw, np.float64)
+    tgt = np.asarray(targets, np.float64) - root_pos[:, None, :]
+    weights = np.ones((N, E)) if weights is None else np.broadcast_to(np.asarray(weights, np.float64), (N, E))
+    orient = np.zeros((N, E, 3)) if orientations is None else np.asarray(orientations, np.float64)
+    length, lam0, eff_lim = settings["length"], settings["damping"], settings["eff_lim"].astype(np.float64)
+    rest_w, vel_w = float(rest_weight), float(velocity_weight)
+    obj_args = (tgt, weights, orient, eff_lim, length, rest_w, vel_w)
+
+    rot = np.array(rot, np.float64)
+    theta = np.zeros((N, D))
+    for j, jt in enumerate(R.joints):
+        if jt["angle"]:
+            theta[:, jt["s"] : jt["s"] + jt["k"]] = joint_angles(jt["k"], jt["axes"], rot[:, j])
+    pos, wrot = _fk(rig, yaw, rot)
+    # the first pass applies a zero step: the start pose projected onto the DOFs and limits
+    st = _apply(R, dict(theta=theta, theta0=theta, rot=rot, q0=rot, pos=pos, wrot=wrot, yaw=yaw), np.zeros((N, D)))
+    st["theta0"], st["q0"] = st["theta"].copy(), st["rot"].copy()
+    obj = np.stack(_objective(R, st, *obj_args), axis=1)  # (N, 3): F, max position error, max orientation error
+    ref_f, ref_acc = obj[:, 0].copy(), np.zeros(N, np.int32)
+    lam = np.full(N, lam0)
+    accepted = np.zeros(N, np.int32)
+    attempts = np.zeros(N, np.int32)
+    bad = np.zeros(N, np.int32)
+    stop = np.zeros(N, bool)
+    failed = np.zeros(N, bool)
+    kick = np.zeros(N, bool)  # the pending step is an escape kick
+    esc = np.zeros(N, bool)  # on probation after a kick
+    esc_left = np.zeros(N, np.int32)
+    escapes = np.zeros(N, np.int32)
+    saved = dict(theta=st["theta"].copy(), rot=st["rot"].copy(), obj=obj.copy(), accepted=accepted.copy())
+    free = np.ones((N, D))
+    step = np.zeros((N, D))
+    max_attempts = 2 * max_iterations + 8
+    go = np.zeros(N, bool)
+
+    def restore_saved(ids):
+        st["theta"][ids], st["rot"][ids] = saved["theta"][ids], saved["rot"][ids]
+        st["pos"][ids], st["wrot"][ids] = _fk(rig, yaw[ids], st["rot"][ids])
+        obj[ids], accepted[ids] = saved["obj"][ids], saved["accepted"][ids]
+        esc[ids] = False
+        ref_f[ids], ref_acc[ids] = obj[ids, 0], accepted[ids]
+
+    def plan(ids):
+        """Next step of the characters ids: an escape kick, or the LM step with the active set."""
+        attempts[ids] += 1
+        k = ids[kick[ids]]
+        step[k] = _kick(R, st["theta"][k], free[k], joint_w)
+        m = ids[~kick[ids]]
+        if m.size == 0:
+            return
+        sub = _take(st, m)
+        jac, err, g = _build(R, sub, tgt[m], weights[m], orient[m], eff_lim, length, rest_w, vel_w)
+        fr = np.ones((m.size, D))
+        lam2 = lam[m] ** 2
+        stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w)
+        for _ in range(D + 1):
+            changed = _freeze(R, sub["theta"], stp, fr)
+            if not changed.any():
+                break
+            c = np.flatnonzero(changed)
+            stp[c] = _solve(jac[c], err[c], g[c], lam2[c], fr[c], joint_w, rest_w, vel_w)
+        step[m], free[m], failed[m] = stp, fr, False
+
+    def decide(ids):
+        """Stall and escape bookkeeping, the stopping test, and the next step for those that go on."""
+        stalled_now = (bad[ids] >= STALL_AFTER) | (lam[ids] > LAM_CAP * length)
+        back = stalled_now & esc[ids]  # a stalled escape goes back to the pose before its kick
+        stop[ids[back]] = True
+        fresh = ids[stalled_now & ~esc[ids] & (escapes[ids] < MAX_ESCAPES)]
+        can = fresh[np.any(_kick(R, st["theta"][fresh], free[fresh], joint_w) != 0, axis=1)]
+        for key in ("theta", "rot"):
+            saved[key][can] = st[key][can]
+        saved["obj"][can], saved["accepted"][can] = obj[can], accepted[can]
+        kick[can], escapes[can], bad[can], lam[can] = True, escapes[can] + 1, 0, lam0
+        stop[np.setdiff1d(ids[stalled_now & ~esc[ids]], can)] = True
+        spent = esc[ids] & (esc_left[ids] <= 0) & ~back
+        stop[ids[spent]] = True
+        back |= spent
+        conv = (obj[ids, 1] <= tolerance) & (obj[ids, 2] <= tolerance)
+        cont = (accepted[ids] < max_iterations) & (attempts[ids] < max_attempts) & ~stop[ids] & ~conv
+        back |= ~cont & esc[ids]
+        restore_saved(ids[back])
+        conv = (obj[ids, 1] <= tolerance) & (obj[ids, 2] <= tolerance)
+        stop[ids[~cont & ~stop[ids] & ~conv & (accepted[ids] < max_iterations)]] = True  # attempts ran out
+        go[:] = False
+        go[ids[cont]] = True
+        plan(ids[cont])
+
+    decide(np.arange(N))
+    while go.any():
+        idx = np.flatnonzero(go)
+        trial = _apply(R, _take(st, idx), step[idx])
+        new = np.stack(_objective(R, trial, tgt[idx], weights[idx], orient[idx], *obj_args[3:]), axis=1)
+        kicked = kick[idx]
+        better = kicked | ((new[:, 0] < obj[idx, 0]) & ~failed[idx])
+        flat = ~kicked & better & (obj[idx, 0] - new[:, 0] < FLAT * obj[idx, 0])
+        acc = idx[better]
+        for key in ("theta", "rot", "pos", "wrot"):
+            st[key][acc] = trial[key][better]
+        obj[acc] = new[better]
+        accepted[acc] += 1
+        lam[acc] = np.where(kicked[better], lam0, np.maximum(0.5 * lam[acc], lam0))
+        bad[idx] = np.where(better & ~flat, 0, bad[idx] + 1)
+        lam[idx[~better]] *= 4.0
+        esc[idx[kicked]], esc_left[idx[kicked]], kick[idx] = True, ESCAPE_ATTEMPTS, False
+        # too slow: F - F_min fell by less than PROGRESS over the last WINDOW accepted steps
+        plain = idx[better & ~kicked]
+        due = plain[accepted[plain] - ref_acc[plain] >= WINDOW]
+        slow = due[obj[due, 0] > (1.0 - PROGRESS) * ref_f[due]]
+        bad[slow] = STALL_AFTER
+        ref_f[due], ref_acc[due] = obj[due, 0], accepted[due]
+        ref_f[idx[kicked]], ref_acc[idx[kicked]] = obj[idx[kicked], 0], accepted[idx[kicked]]
+        # on probation: kept once it beats the pose before the kick (or converges)
+        probe = idx[esc[idx] & ~kicked]
+        conv = (obj[probe, 1] <= tolerance) & (obj[probe, 2] <= tolerance)
+        esc[probe[(obj[probe, 0] < saved["obj"][probe, 0]) | conv]] = False
+        esc_left[probe] -= 1
+        decide(idx)
+    world_pos = st["pos"] + root_pos[:, None, :]
+    return st["rot"], world_pos, obj[:, 1].copy(), accepted, stop.astype(np.int32)
+
+
+__all__ = ["dls_solve", "dls_settings", "qlog", "qexp", "swing_vector"]
