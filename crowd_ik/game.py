@@ -493,7 +493,8 @@ class World:
         self.reflex = (REFLEX_RANGE[0] + (REFLEX_RANGE[1] - REFLEX_RANGE[0])
                        * _rand(self.seed, _STREAM_CHAR, np.arange(N), 0)).astype(np.float32)
         self.prefers_duck = _rand(self.seed, _STREAM_CHAR, np.arange(N), 1) < 0.5
-        grey = CHARACTER_GREY[0] + (CHARACTER_GREY[1] - CHARACTER_GREY[0]) * _rand(self.seed, _STREAM_CHAR, np.arange(N), 2)
+        lo, hi = CHARACTER_GREY
+        grey = lo + (hi - lo) * _rand(self.seed, _STREAM_CHAR, np.arange(N), 2)
         self.colors = np.repeat(grey[:, None], 3, axis=1).astype(np.float32)  # (N, 3) BGR
         self.lean = np.zeros((N, 3), np.float32)  # low-passed dodge state
         self.duck = np.zeros(N, np.float32)
@@ -509,7 +510,7 @@ class World:
         self._joints_prev = self._joints.copy()
         self._caps_prev = None
 
-        # shooters: humanoids at their rest scale, aiming with the right hand
+        # shooters: humanoids at the characters' scale, aiming with the right hand
         cam = scene.camera
         self.camera = Camera(cam.position, cam.look_at, cam.fov_deg, scene.video.width, scene.video.height)
         self.shooter_ground, self.shooter_yaw = shooter_layout(scene, self.camera)
@@ -581,7 +582,7 @@ class World:
         self._acc = 0.0
         self._phase_ms = {"simulation": 0.0, "ik": 0.0, "render": 0.0}
         self.totals = {"simulation_ms": 0.0, "ik_ms": 0.0, "render_ms": 0.0, "frames": 0, "rendered": 0}
-        self._hud_ms = {"ik": None, "simulation": None, "render": None}
+        self._hud_ms = {"ik": None, "simulation": None}  # smoothed for the HUD
 
         # drawing
         self.max_capsules = N * B + S * (hb.n_bones + 1) + hb.n_bones + M
@@ -826,7 +827,8 @@ class World:
         scale = b.scale
         down = np.zeros((self.n, 3), np.float32)
         down[:, 1] = -self.duck
-        targets = self.rest_targets + b.lean[None, :, None] * self.lean[:, None, :] + b.duck[None, :, None] * down[:, None, :]
+        targets = (self.rest_targets + b.lean[None, :, None] * self.lean[:, None, :]
+                   + b.duck[None, :, None] * down[:, None, :])
         roots = self.roots.copy()
         if b.humanoid:
             shift = self.lean * b.pelvis_share
