@@ -162,8 +162,8 @@ def has_orientation(i, e, eff_has_axis: ti.template(), orient: ti.template()):
 @ti.func
 def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(), dof_start: ti.template(),
               eff_joint: ti.template(), eff_axis: ti.template(),
-              eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
-              local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
+              eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(), local_rot: ti.template(),
+              rel_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
               weights: ti.template(), orient: ti.template(), work: ti.template(), qwork: ti.template(),
               length, rest_w, vel_w):
     """(F, max position error, max orientation error * L) of character i's current pose.
@@ -569,8 +569,7 @@ def dls_solve(
             if first == 1:  # the projected start pose is the reference of the velocity term
                 copy_pose(i, THETA, THETA0, -1, Q_START, parent, local_rot, work, qwork)
             new = objective(i, parent, kind, jmode, dof_start, eff_joint, eff_axis, eff_has_axis, eff_lim, root_pos,
-                            root_yaw, local_rot, rel_pos, world_rot, targets, weights, orient, work, qwork, length,
-                            rest_w, vel_w)
+                            local_rot, rel_pos, world_rot, targets, weights, orient, work, qwork, length, rest_w, vel_w)
             need_fk = 0
             if first == 1:
                 obj = new

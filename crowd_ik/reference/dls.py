@@ -348,7 +348,9 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world metres; weights (N, E) (default ones);
     orientations (N, E, 3) unit directions or zero; joint_weights (D,) (default ones). The other
     arguments as in Crowd.solve(method="dls"). Float64 throughout; each pass of the loop below is
-    one pass of the kernel's per-character loop, over every character still running.
+    one pass of the kernel's per-character loop, over every character still running. (The kernel
+    also voids a step whose float32 Cholesky meets a non-positive pivot; in float64 with lam > 0
+    that cannot happen.)
     """
     joint_w = np.ones(rig.n_dof) if joint_weights is None else np.asarray(joint_weights, np.float64)
     settings = dls_settings(rig, damping, joint_w)
@@ -379,7 +381,6 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     attempts = np.zeros(N, np.int32)
     bad = np.zeros(N, np.int32)
     stop = np.zeros(N, bool)
-    failed = np.zeros(N, bool)
     kick = np.zeros(N, bool)  # the pending step is an escape kick
     esc = np.zeros(N, bool)  # on probation after a kick
     esc_left = np.zeros(N, np.int32)
@@ -416,7 +417,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
                 break
             c = np.flatnonzero(changed)
             stp[c] = _solve(jac[c], err[c], g[c], lam2[c], fr[c], joint_w, rest_w, vel_w)
-        step[m], free[m], failed[m] = stp, fr, False
+        step[m], free[m] = stp, fr
 
     def decide(ids):
         """Stall and escape bookkeeping, the stopping test, and the next step for those that go on."""
@@ -449,7 +450,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         trial = _apply(R, _take(st, idx), step[idx])
         new = np.stack(_objective(R, trial, tgt[idx], weights[idx], orient[idx], *obj_args[3:]), axis=1)
         kicked = kick[idx]
-        better = kicked | ((new[:, 0] < obj[idx, 0]) & ~failed[idx])
+        better = kicked | (new[:, 0] < obj[idx, 0])
         flat = ~kicked & better & (obj[idx, 0] - new[:, 0] < FLAT * obj[idx, 0])
         acc = idx[better]
         for key in ("theta", "rot", "pos", "wrot"):
@@ -460,7 +461,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         bad[idx] = np.where(better & ~flat, 0, bad[idx] + 1)
         lam[idx[~better]] *= 4.0
         esc[idx[kicked]], esc_left[idx[kicked]], kick[idx] = True, ESCAPE_ATTEMPTS, False
-        # too slow: F - F_min fell by less than PROGRESS over the last WINDOW accepted steps
+        # too slow: F fell by less than PROGRESS over the last WINDOW accepted steps
         plain = idx[better & ~kicked]
         due = plain[accepted[plain] - ref_acc[plain] >= WINDOW]
         slow = due[obj[due, 0] > (1.0 - PROGRESS) * ref_f[due]]
