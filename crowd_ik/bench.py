@@ -453,6 +453,7 @@ def child_main(spec_path: str, result_path: str) -> int:
     from crowd_ik import runtime
 
     spec = json.loads(Path(spec_path).read_text())
+    load_start = list(os.getloadavg())
     arch = runtime.init(spec["arch"], spec["threads"])
     import taichi as ti
 
@@ -480,6 +481,7 @@ def child_main(spec_path: str, result_path: str) -> int:
                   taichi_threads=int(ti.lang.impl.current_cfg().cpu_max_num_threads),
                   gpu=_gpu_name() if arch == "cuda" else None,
                   peak_rss_bytes=int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024,
+                  loadavg_start=load_start, loadavg_end=list(os.getloadavg()),
                   compile=compile_info, records=records, game=game)
     Path(result_path).write_text(json.dumps(result))
     return 0
@@ -525,11 +527,16 @@ def _reference_solver(solver: str):
 
 
 class Baseline:
-    """Times the NumPy twins under a per-cell budget; runs on the same subset are shared between cells."""
+    """Times the NumPy twins under a per-cell budget; runs on the same subset are shared between cells.
+
+    :meth:`measure` spends a cell's budget and returns the subset size it settled on; :meth:`summary`
+    reports that subset from every run made on it (by this cell or an earlier one), so cells that share
+    a subset report the same numbers.
+    """
 
     def __init__(self, repeats: int, budget: float):
         self.repeats, self.budget = repeats, budget
-        self._runs: dict[tuple, list] = {}  # (rig, solver, m) -> [(seconds, error, iterations), ...]
+        self._runs: dict[tuple, list] = {}  # (rig, solver, m) -> [(seconds, outcome dict), ...]
         self._inputs: dict[tuple, tuple] = {}
 
     def _inputs_for(self, rig_name: str, n: int, m: int) -> tuple:
@@ -541,44 +548,43 @@ class Baseline:
                                  wl.targets.astype(np.float64), np.ones((m, wl.rig.n_effectors)), _reachable(wl))
         return self._inputs[key]
 
-    def _run(self, rig_name: str, solver: str, n: int, m: int, k: int) -> tuple:
-        """The k-th timed run of the NumPy twin on the first m characters (cached)."""
+    def _run(self, rig_name: str, solver: str, n: int, m: int, k: int) -> float:
+        """Seconds of the k-th timed run of the NumPy twin on the first m characters (cached)."""
         runs = self._runs.setdefault((rig_name, solver, m), [])
         while len(runs) <= k:
-            wl, roots, yaw, rot, targets, weights, _ = self._inputs_for(rig_name, n, m)
+            wl, roots, yaw, rot, targets, weights, reachable = self._inputs_for(rig_name, n, m)
             fn = _reference_solver(solver)
             t0 = time.perf_counter()
             err, iters = fn(wl.rig, roots, yaw, rot, targets, weights, wl.max_iterations, wl.tolerance)
-            runs.append((time.perf_counter() - t0, err, iters))
-        return runs[k]
+            runs.append((time.perf_counter() - t0, _outcome(err, iters, err <= wl.tolerance, reachable)))
+        return runs[k][0]
 
-    def measure(self, rig_name: str, solver: str, n: int) -> dict | None:
-        """NumPy solves/s of cell (rig, solver, n) and its outcome on the subset measured; None without a twin."""
+    def measure(self, rig_name: str, solver: str, n: int) -> int | None:
+        """Spend the budget of cell (rig, solver, n); return the subset size measured (None: no twin, or budget 0)."""
         if _reference_solver(solver) is None or self.budget <= 0:
             return None
         start = time.perf_counter()
         m = min(n, BASELINE_PROBE)
-        t = self._run(rig_name, solver, n, m, 0)[0]
+        t = self._run(rig_name, solver, n, m, 0)
         while m < n:  # grow the subset while `repeats` runs of the next size fit in what is left
             left = self.budget - (time.perf_counter() - start)
             grow = min(n, 10 * m, int(left / (self.repeats * t / m)))
             if grow < 1.25 * m:
                 break
             m = grow
-            t = self._run(rig_name, solver, n, m, 0)[0]
-        k = 1
-        while k < self.repeats:
+            t = self._run(rig_name, solver, n, m, 0)
+        for k in range(1, self.repeats):
             done = self._runs[(rig_name, solver, m)]
-            cached = len(done) > k
-            if not cached and (time.perf_counter() - start) + min(r[0] for r in done) > self.budget:
+            if len(done) <= k and (time.perf_counter() - start) + min(r[0] for r in done) > self.budget:
                 break
             self._run(rig_name, solver, n, m, k)
-            k += 1
-        runs = self._runs[(rig_name, solver, m)][:k]
-        best = min(runs, key=lambda r: r[0])
-        wl, *_, reachable = self._inputs_for(rig_name, n, m)
-        out = _outcome(best[1], best[2], best[1] <= wl.tolerance, reachable)
-        return dict(numpy_solves_per_s=m / best[0], numpy_n=m, numpy_repeats=k, numpy_time_s=best[0],
+        return m
+
+    def summary(self, rig_name: str, solver: str, m: int) -> dict:
+        """NumPy solves/s on the first m characters (best of every run on them) and that run's outcome."""
+        runs = self._runs[(rig_name, solver, m)]
+        seconds, out = min(runs, key=lambda r: r[0])
+        return dict(numpy_solves_per_s=m / seconds, numpy_n=m, numpy_repeats=len(runs), numpy_time_s=seconds,
                     numpy_success_rate=out["success_rate"], numpy_mean_error=out["mean_error"],
                     numpy_mean_iterations=out["mean_iterations"])
 
@@ -614,7 +620,22 @@ def command_line(opts: Options, arches: tuple[str, ...]) -> str:
     return " ".join(parts)
 
 
-def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...]) -> dict:
+def _source_state() -> dict | None:
+    """The git commit of the code measured, and the files of the package that differ from it (None outside git)."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "kernels", "crowd_ik"],
+                               capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if head.returncode != 0:
+        return None
+    changed = [line[3:] for line in dirty.stdout.splitlines() if line.strip()]
+    return dict(commit=head.stdout.strip(), uncommitted=changed)
+
+
+def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...], load_before: list[float]) -> dict:
     from crowd_ik import __version__
 
     try:
@@ -627,9 +648,11 @@ def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...]) -> 
         command=command_line(opts, arches),
         cpu_model=_cpu_model(), cores=os.cpu_count(), usable_cores=usable, threads=opts.threads,
         platform=platform.platform(), python=platform.python_version(), numpy=np.__version__,
-        taichi=_version("taichi"), matplotlib=_version("matplotlib"),
+        taichi=_version("taichi"), matplotlib=_version("matplotlib"), source=_source_state(),
+        loadavg_before=load_before,
         arches=[dict(requested=c["requested"], resolved=c["arch"], taichi_threads=c["taichi_threads"], gpu=c["gpu"],
-                     peak_rss_bytes=c["peak_rss_bytes"], compile=c["compile"]) for c in children],
+                     peak_rss_bytes=c["peak_rss_bytes"], loadavg_start=c["loadavg_start"],
+                     loadavg_end=c["loadavg_end"], compile=c["compile"]) for c in children],
         settings=dict(chars=list(opts.chars), solvers=list(opts.solvers), rigs=list(opts.rigs), repeats=opts.repeats,
                       baseline_budget_s=opts.budget, baseline_probe=BASELINE_PROBE, game_chars=opts.game_chars,
                       game_frames=opts.game_frames, quick=opts.quick, seed=SEED, spacing_m=SPACING),
@@ -810,6 +833,10 @@ def run(args) -> int:
             raise ValueError(f"--plot: the same file as --json ({args.plot})")
     old = load_results(args.compare) if args.compare else None
     arches = resolve_arches(opts.arches)
+    load_before = list(os.getloadavg())
+    if load_before[0] > 0.5:
+        print(f"crowd-ik bench: note: load average {load_before[0]:.2f} before the run; other processes share the CPU, "
+              "so the timings will be pessimistic and noisy", file=sys.stderr)
 
     children = [run_child(arch, cells_for(opts, arch), opts) for arch in arches]
     records = [r for c in children for r in c["records"]]
@@ -817,16 +844,17 @@ def run(args) -> int:
 
     baseline = Baseline(opts.repeats, opts.budget)
     cells = list(dict.fromkeys((r["rig"], r["solver"], r["n"]) for r in records))
-    found = {}
+    chosen = {}
     if opts.budget > 0:
         for cell in tqdm(cells, desc="bench numpy", unit="cell", file=sys.stderr, dynamic_ncols=True):
-            found[cell] = baseline.measure(*cell)
+            chosen[cell] = baseline.measure(*cell)
+    found = {cell: baseline.summary(cell[0], cell[1], m) for cell, m in chosen.items() if m is not None}
     for r in records:
         base = found.get((r["rig"], r["solver"], r["n"]))
         r.update(base or dict(numpy_solves_per_s=None, numpy_n=0, numpy_repeats=0))
         r["speedup"] = r["solves_per_s"] / base["numpy_solves_per_s"] if base else None
 
-    result = dict(meta=build_meta(opts, children, arches), records=records, game=games,
+    result = dict(meta=build_meta(opts, children, arches, load_before), records=records, game=games,
                   targets=evaluate_targets(records, games))
     missing = [s for s in opts.solvers if _reference_solver(s) is None]
     if missing:

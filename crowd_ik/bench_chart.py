@@ -13,7 +13,7 @@ MARKERS = {"cpu": "o", "cuda": "^"}
 
 
 def _series(records: list[dict], rig: str) -> tuple[dict, dict]:
-    """{(solver, arch): [(n, solves/s)]} for Taichi and {solver: [(n, numpy solves/s)]} for the baseline."""
+    """{(solver, arch): [(n, solves/s)]} for Taichi and {solver: [(n, numpy solves/s, on a subset)]} for NumPy."""
     taichi, numpy = {}, {}
     for r in sorted(records, key=lambda r: r["n"]):
         if r["rig"] != rig:
@@ -21,8 +21,8 @@ def _series(records: list[dict], rig: str) -> tuple[dict, dict]:
         taichi.setdefault((r["solver"], r["arch"]), []).append((r["n"], r["solves_per_s"]))
         if r.get("numpy_solves_per_s"):
             points = numpy.setdefault(r["solver"], [])
-            if all(n != r["n"] for n, _ in points):
-                points.append((r["n"], r["numpy_solves_per_s"]))
+            if all(n != r["n"] for n, *_ in points):
+                points.append((r["n"], r["numpy_solves_per_s"], r["numpy_n"] < r["n"]))
     return taichi, numpy
 
 
@@ -54,8 +54,15 @@ def draw(result: dict, path: str | Path, dpi: int = 120) -> None:
             ax.plot(n, y, color=COLOURS.get(solver, "k"), marker=MARKERS.get(arch, "s"), lw=2,
                     label=f"{solver} (Taichi {arch})")
         for solver, pts in numpy.items():
-            n, y = zip(*pts)
-            ax.plot(n, y, color=COLOURS.get(solver, "k"), marker="x", ls="--", lw=1.5, label=f"{solver} (NumPy)")
+            n, y, subset = zip(*pts)
+            colour = COLOURS.get(solver, "k")
+            ax.plot(n, y, color=colour, ls="--", lw=1.5, label=f"{solver} (NumPy)")
+            full = [(a, b) for a, b, s in pts if not s]
+            part = [(a, b) for a, b, s in pts if s]
+            if full:
+                ax.plot(*zip(*full), ls="none", marker="s", ms=5, color=colour)
+            if part:  # measured on the first numpy_n characters only, within the time budget
+                ax.plot(*zip(*part), ls="none", marker="s", ms=6, mfc="white", mec=colour)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ns = sorted({r["n"] for r in records if r["rig"] == rig})
@@ -69,11 +76,17 @@ def draw(result: dict, path: str | Path, dpi: int = 120) -> None:
         ax.set_title(rig)
         ax.grid(True, which="major", alpha=0.4)
         ax.grid(True, which="minor", alpha=0.15)
-        ax.legend(fontsize="small", loc="best")
     meta = result.get("meta", {})
     cores = meta.get("usable_cores") or meta.get("cores")
     fig.suptitle(f"crowd-ik bench: IK solves/s vs characters - {meta.get('cpu_model', '?')}, {cores} cores "
                  f"(best of {meta.get('settings', {}).get('repeats', '?')})", fontsize="medium")
+    legend = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    fig.legend(legend.values(), legend.keys(), loc="outside lower center", ncol=min(len(legend), 6), fontsize="small",
+               title="solid: Taichi; dashed: vectorised NumPy twins; hollow squares: NumPy timed on a subset of the "
+                     "characters (its time budget)", title_fontsize="small", frameon=False)
     fig.savefig(path, dpi=dpi)
 
 
