@@ -336,7 +336,9 @@ class Crowd:
         from crowd_ik.reference.dls import dls_settings
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
-        D, J, R = max(rig.n_dof, 1), rig.n_joints, 5 * rig.n_effectors
+        # rows: 3 per effector, 2 more for each effector with an axis (orientation target)
+        D, J = max(rig.n_dof, 1), rig.n_joints
+        R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum())
         settings = dls_settings(rig, params["damping"], params["joint_weights"])
         joint_w = np.zeros(D + 1, np.float32)
         joint_w[: rig.n_dof] = 1.0 if params["joint_weights"] is None else params["joint_weights"]

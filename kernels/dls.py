@@ -19,8 +19,8 @@ transpose, pseudoinverse and damped least squares"; Buss & Kim 2005 for the erro
    (rho: offset from rest, nu: offset from the solve's start pose, w_d joint weights), i.e.
    d = M g + M' J^T (J M' J^T + lam^2 I)^-1 (e - J M g), m'_d = w_d lam^2 / (lam^2 + w_d (alpha + beta)),
    m_d = m'_d / lam^2, g = -(alpha rho + beta nu). Without alpha and beta this is Buss's weighted
-   DLS d = W J^T (J W J^T + lam^2 I)^-1 e. The R x R system (R <= 5E) is solved by a Cholesky
-   factorisation in a per-character scratch array (no local matrices).
+   DLS d = W J^T (J W J^T + lam^2 I)^-1 e. The R x R system (R <= 3E + 2 per effector with an
+   axis) is solved by a Cholesky factorisation in a per-character scratch array (no local matrices).
 4. Active set: a DOF at a limit whose step points outward is frozen (m = 0) and the system solved
    again; every attempt starts with all DOFs free, so a DOF is released when its step points inward.
 5. Levenberg-Marquardt: the step is taken (angles clamped to their limits, cones projected) and
@@ -537,9 +537,10 @@ def dls_solve(
     Rig arrays as in Rig.arrays; eff_lim (E, 2): per effector the reach and d_max (metres);
     joint_w (D+1,) per-DOF weights (0 freezes a DOF). targets (N, E, 3) world metres; weights (N, E);
     orient (N, E, 3) unit directions or zero. Scratch: rel_pos (N, J), qwork (N, 3, J),
-    work (N, 9, D+1), jac (N, 5E, D+1), rows (N, 2, 5E), sys (N, 5E, 5E). damping and length in
-    metres (damping > 0); rest_w, velocity_w in m^2/rad^2. Outputs: error (N,) final max effector
-    distance, iterations (N,) accepted steps, stalled (N,) 1 if LM could make no more progress.
+    work (N, 9, D+1), jac (N, R, D+1), rows (N, 2, R), sys (N, R, R), R = 3E + 2 per effector with
+    an axis. damping and length in metres (damping > 0); rest_w, vel_w in m^2/rad^2. Outputs:
+    error (N,) final max effector distance, iterations (N,) accepted steps, stalled (N,) 1 if LM
+    could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.reference.dls.dls_settings.
     """
     for i in range(root_pos.shape[0]):
         read_angles(i, parent, kind, jmode, axes, dof_start, local_rot, work)
