@@ -251,12 +251,13 @@ def test_kernel_matches_numpy_twin(case):
     rep = crowd.solve(targets, method="dls", **kwargs)
     orient = kwargs.pop("orientations", None)
     rot, pos, err, iters, stalled = dls_solve(rig, roots, yaw, rot0, targets, orientations=orient, **kwargs)
+    # float32 and float64 take the same accept/reject decisions almost always (here: all of them)
     same = (iters == rep.iterations) | (np.abs(err - rep.error) <= 1e-4)
     assert np.mean(same) >= 0.9
     agree = iters == rep.iterations
-    assert np.mean(agree) >= 0.75
-    np.testing.assert_allclose(rep.error[agree], err[agree], atol=1e-4)
-    np.testing.assert_allclose(crowd.joint_positions()[agree], pos[agree], atol=2e-3)
+    assert np.mean(agree) >= 0.85
+    np.testing.assert_allclose(rep.error[agree], err[agree], atol=1e-5)
+    np.testing.assert_allclose(crowd.joint_positions()[agree], pos[agree], atol=1e-4)
 
 
 def test_planar_chain_matches_planar_dls():
