@@ -280,6 +280,10 @@ class Crowd:
             orient = _as_array(orientations, "orientations", (N, E, 3))
             norms = np.linalg.norm(orient, axis=-1)
             has = norms > 0
+            no_axis = np.nonzero(np.any(has, axis=0) & (self.rig.arrays["eff_has_axis"] == 0))[0]
+            if no_axis.size:
+                name = self.rig.effector_names[no_axis[0]]
+                raise ValueError(f"orientations: effector {name!r} has no local axis to orient (give zeros for it)")
             orient = np.where(has[..., None], orient / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
         else:
             orient = None

@@ -203,6 +203,7 @@ def test_solve_is_deterministic_bitwise():
     (dict(weights=[0.0]), "weights"),
     (dict(rest_weight=-1.0), "rest_weight"),
     (dict(orientations=np.full((2, 1, 3), np.nan)), "orientations"),
+    (dict(orientations=np.ones((2, 1, 3))), "no local axis"),
 ])
 def test_bad_arguments_raise_naming_the_argument(kwargs, match):
     crowd = cik.Crowd(cik.Rig.chain(3, dim=3), n=2)
