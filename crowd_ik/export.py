@@ -8,6 +8,12 @@ and `shards` / `bullets` when there are any. glTF's axes are the world's: y up, 
 The capsules are built from one trimesh capsule template, moved and scaled per capsule in one
 vectorised step (its upper hemisphere goes to the capsule's end b, the lower one to a).
 The file is written atomically and never clobbers an existing one without --force.
+
+`crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` writes character K's motion as
+BVH (crowd_ik.clip: metres, y up, one BVH frame per video frame). SCENE is simulated as `play`
+would for N frames (default the scene's frame count), without rendering; SCENE may instead be a
+clip saved by `crowd-ik play ... --clip F.npz` (a live session replayed with --inputs, say), whose
+first N frames are then written.
 """
 
 from __future__ import annotations
@@ -99,10 +105,64 @@ def write_glb(path, meshes: dict, force: bool = False) -> Path:
     return Path(path)
 
 
+def run_bvh(args) -> int:
+    """`crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` (see the module docstring)."""
+    from crowd_ik.clip import bvh_from_clip, bvh_joints, load_clip, record_clip
+    from crowd_ik.output import write_text
+    from crowd_ik.scene import scene_with
+
+    out = args.bvh
+    if Path(out).suffix.lower() != ".bvh":
+        raise ValueError(f"--bvh: motion is written as a .bvh file (got {out!r})")
+    if args.output is not None:
+        raise ValueError(f"-o: with --bvh the output is the --bvh file (got -o {args.output})")
+    if args.frame != 0:
+        raise ValueError(f"--frame: picks the .glb's frame; with --bvh give the length with --frames N (got --frame {args.frame})")
+    if args.character < 0:
+        raise ValueError(f"--character: must be zero or a positive integer (got {args.character})")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames: must be a positive integer (got {args.frames})")
+    source = args.scene
+    if source is not None and Path(source).suffix.lower() == ".npz":
+        check_writable(out, args.force)
+        clip = load_clip(source)
+        available = len(clip["frame"])
+        if args.frames is not None and args.frames > available:
+            raise ValueError(f"--frames: {source} holds {available} frames (got {args.frames})")
+        if args.frames is not None:
+            for key in [k for k in clip if k.endswith(("_root", "_yaw", "_angles", "_alive"))]:
+                clip[key] = clip[key][: args.frames]
+        name = Path(source).name
+    else:
+        scene = load_scene(source)
+        if args.frames is not None:
+            scene = scene_with(scene, frames=args.frames)
+        count = scene.characters.count
+        if args.character >= count:
+            raise ValueError(f"--character: {scene.name} has {count} characters, 0..{count - 1} (got {args.character})")
+        check_writable(out, args.force)
+        runtime.init(arch=args.arch, threads=args.threads)
+        clip = record_clip(scene, characters=[args.character])
+        name = scene.name
+    rig, text = bvh_from_clip(clip, args.character, name)
+    write_text(out, text, force=args.force)
+    i = int(np.flatnonzero(np.asarray(clip["characters_index"]) == args.character)[0])
+    alive = np.asarray(clip["characters_alive"])[:, i]
+    frames = len(alive)
+    hit = f"; hit at frame {int(np.argmin(alive))}, still after" if not alive.all() else ""
+    channels = len(bvh_joints(rig))
+    print(f"{out}: character {args.character} of {name}, {frames} frames at {float(clip['fps']):g} fps, "
+          f"{channels} joints with channels and {rig.n_joints - channels} end sites, metres, y up{hit}")
+    return 0
+
+
 def run(args) -> int:
-    """`crowd-ik export`: simulate the scene to --frame K and write its capsules to a .glb."""
+    """`crowd-ik export`: simulate the scene to --frame K and write its capsules to a .glb
+    (with --bvh: one character's motion, see run_bvh)."""
     if getattr(args, "bvh", None):
-        raise ValueError("--bvh: BVH export is not available in this version")
+        return run_bvh(args)
+    if getattr(args, "frames", None) is not None:
+        raise ValueError(f"--frames: only with --bvh; a .glb is one frame, chosen with --frame K (got --frames {args.frames})")
     if args.frame < 0:
         raise ValueError(f"--frame: must be zero or a positive integer (got {args.frame})")
     scene = load_scene(args.scene)
@@ -125,4 +185,4 @@ def run(args) -> int:
     return 0
 
 
-__all__ = ["run", "world_meshes", "write_glb", "capsule_vertices"]
+__all__ = ["run", "run_bvh", "world_meshes", "write_glb", "capsule_vertices"]

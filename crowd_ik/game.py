@@ -626,6 +626,30 @@ class World:
                              f"(got {origins.shape} and {velocities.shape})")
         return self._spawn(origins, velocities)
 
+    def set_player_input(self, move, aim=None, fire: bool = False) -> np.ndarray:
+        """Steer the player by hand instead of along its path (live play, recorded inputs).
+
+        move: (x, z) in [-1, 1] world axes (a longer vector is cut to length 1): the player walks
+        at move * player.speed in the following step() calls, until the next call (the scripted
+        path is not resumed); the time scale follows its speed as before. aim: (3,) world point
+        or None: the player turns toward it and IK holds its right hand on the line from the
+        shoulder to it. fire: spawn one bullet now from the right hand toward aim (needs aim),
+        through the pool like the shooters' bullets. Returns the pool slots spawned (0 or 1).
+        """
+        from crowd_ik.live import SteeredWalker
+
+        if not isinstance(self.walker, SteeredWalker):
+            self.walker = SteeredWalker(self.walker)
+        self.walker.steer(move, aim)
+        if not fire:
+            return np.zeros(0, np.int64)
+        if aim is None:
+            raise ValueError("set_player_input: fire needs an aim point (got aim=None)")
+        bl, hb = self.scene.bullets, self.hbody
+        hand = self._player_joints[hb.hand_r][None].astype(np.float32)
+        d = ballistic_direction(hand, self.walker.aim[None], bl.speed, bl.gravity, bl.drag)
+        return self._spawn(hand + d * np.float32(0.08 * hb.scale), d * np.float32(bl.speed))
+
     def step(self) -> None:
         """Advance one video frame: the player walks 1/fps s of real time, the time scale follows it,
         and the world takes as many fixed DT steps as the frame's world time allows."""

@@ -4,7 +4,12 @@ on stderr and a one-screen summary on stdout.
 Order of work: check the arguments and that every output may be written (no clobbering without
 --force) before anything is simulated; start Taichi once; build the World; then step and render
 frame by frame into the sink. Ctrl-C finalises the frames written so far as a shorter, playable
-video (the sink's context manager) and the CLI exits with 130.
+video (the sink's context manager; a --clip keeps those frames too) and the CLI exits with 130.
+
+--live plays in a window (crowd_ik.live; --record F.csv saves the inputs); --inputs F.csv replays
+such a recording headless, one video frame per row, with the recorded fps, size, seed and solver
+unless the command line gives others; --clip F.npz also saves every body's root transforms and
+joint angles per video frame (crowd_ik.clip).
 """
 
 from __future__ import annotations
@@ -18,29 +23,37 @@ from crowd_ik import runtime
 from crowd_ik.output import check_writable, check_writable_dir, is_dir_target, write_json
 from crowd_ik.scene import Scene, load_scene, parse_size, scene_with
 
-_LATER = {  # flags the parser declares for a later version of this command
-    "live": "--live: playing in a window is not available in this version",
-    "record": "--record: recording inputs (with --live) is not available in this version",
-    "inputs": "--inputs: replaying recorded inputs is not available in this version",
-    "clip": "--clip: saving motion clips is not available in this version",
-}
+def check_modes(args) -> None:
+    """Refuse flag combinations that mean nothing: --live plays a window (no video, no clip)."""
+    if args.live:
+        for flag, given in (("-o", args.output), ("--still", args.still), ("--inputs", args.inputs),
+                            ("--clip", args.clip)):
+            if given is not None:
+                raise ValueError(f"{flag}: not with --live, which writes no video; record the inputs with "
+                                 f"--record F.csv and render them with --inputs F.csv -o OUT.mp4")
+    elif args.record is not None:
+        raise ValueError(f"--record: records the inputs of a --live session (got --record {args.record} "
+                         f"without --live)")
 
 
-def _refuse_unavailable(args) -> None:
-    for flag, message in _LATER.items():
-        value = getattr(args, flag, None)
-        if value:
-            raise ValueError(message)
+def build_scene(args, recorded: dict | None = None) -> Scene:
+    """The scene file (or the built-in arena) with the command line's overrides applied and checked.
 
-
-def build_scene(args) -> Scene:
-    """The scene file (or the built-in arena) with the command line's overrides applied and checked."""
+    recorded: settings of a recorded session (seed, fps, size, solver as text), used where the
+    command line gives none.
+    """
     scene = load_scene(args.scene)
     if args.seed is not None and args.seed < 0:
         raise ValueError(f"--seed: must be zero or a positive integer (got {args.seed})")
     size = None if args.size is None else parse_size(args.size, "--size")
-    return scene_with(scene, seed=args.seed, frames=args.frames, seconds=args.seconds, fps=args.fps,
-                      size=size, method=args.solver)
+    rec = recorded or {}
+    seed = args.seed if args.seed is not None or "seed" not in rec else int(rec["seed"])
+    fps = args.fps if args.fps is not None or "fps" not in rec else float(rec["fps"])
+    if size is None and "size" in rec:
+        size = parse_size(rec["size"], "size")
+    method = args.solver if args.solver is not None else rec.get("solver")
+    return scene_with(scene, seed=seed, frames=args.frames, seconds=args.seconds, fps=fps, size=size,
+                      method=method)
 
 
 def output_path(args, scene: Scene) -> str:
@@ -80,6 +93,10 @@ def check_outputs(args, scene: Scene, out: str) -> None:
         if os.path.abspath(args.stats) == os.path.abspath(out):
             raise ValueError(f"--stats: {args.stats} is also the video output")
         check_writable(args.stats, args.force)
+    if getattr(args, "clip", None) is not None:
+        if Path(args.clip).suffix.lower() != ".npz":
+            raise ValueError(f"--clip: a clip is written as a .npz file (got {args.clip!r})")
+        check_writable(args.clip, args.force)
 
 
 def _progress(total: int, desc: str):
@@ -136,45 +153,107 @@ def format_summary(info: dict) -> str:
     ])
 
 
+def _inputs_scene(args, log) -> Scene:
+    """The scene of a replay: the recorded settings as defaults, one video frame per row (or the
+    first --frames / --seconds worth of them)."""
+    scene = build_scene(args, log.settings)
+    if args.frames is None and args.seconds is None:
+        return scene_with(scene, frames=len(log))
+    if scene.n_frames > len(log):
+        flag = "--frames" if args.frames is not None else "--seconds"
+        raise ValueError(f"{flag}: {log.path} holds {len(log)} frames of inputs (got {scene.n_frames} frames)")
+    return scene
+
+
 def run(args) -> int:
     """`crowd-ik play`: see the module docstring."""
     t_start = time.perf_counter()
-    _refuse_unavailable(args)
-    scene = build_scene(args)
+    check_modes(args)
+    if args.live:
+        from crowd_ik import live
+
+        return live.run(args)
+    log = None
+    if args.inputs is not None:
+        from crowd_ik.live import load_inputs
+
+        log = load_inputs(args.inputs)
+        scene = _inputs_scene(args, log)
+    else:
+        scene = build_scene(args)
     out = output_path(args, scene)
     check_outputs(args, scene, out)
     arch = runtime.init(arch=args.arch, threads=args.threads)
     from crowd_ik.game import World
     from crowd_ik.video import open_sink, write_png
 
-    world = World(scene)
-    if args.still is not None:
-        with _progress(args.still + 1, f"{scene.name} still") as bar:
-            for _ in range(args.still):
-                world.step()
-                bar.update()
-            frame = world.render()
-            bar.update()
-        write_png(out, frame, force=args.force)
-        rendered = 1
+    if log is not None:
+        from crowd_ik.live import PlayerWorld, Session
+
+        world = PlayerWorld(scene)
+        session = Session(world)
+
+        def advance(k: int) -> None:  # video frame k shows the world after input row k
+            session.advance(log.inputs[k])
     else:
-        n = scene.n_frames
-        rendered = 0
-        with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
-                _progress(n, scene.name) as bar:
-            for k in range(n):
-                if k:
-                    world.step()
-                sink.write(world.render())
-                rendered += 1
+        world = World(scene)
+
+        def advance(k: int) -> None:  # video frame k shows the world after k steps
+            if k:
+                world.step()
+
+    clip = None
+    if args.clip is not None:
+        from crowd_ik.clip import ClipRecorder
+
+        clip = ClipRecorder(world, (args.still + 1) if args.still is not None else scene.n_frames)
+    try:
+        if args.still is not None:
+            with _progress(args.still + 1, f"{scene.name} still") as bar:
+                for k in range(args.still + 1):
+                    advance(k)
+                    if clip is not None:
+                        clip.add(world)
+                    if k < args.still:
+                        bar.update()
+                frame = world.render()
                 bar.update()
+            write_png(out, frame, force=args.force)
+            rendered = 1
+        else:
+            n = scene.n_frames
+            rendered = 0
+            with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
+                    _progress(n, scene.name) as bar:
+                for k in range(n):
+                    advance(k)
+                    if clip is not None:
+                        clip.add(world)
+                    sink.write(world.render())
+                    rendered += 1
+                    bar.update()
+    except KeyboardInterrupt:
+        if clip is not None and clip.count:
+            clip.save(args.clip, force=args.force)  # the frames simulated so far, like the video
+        raise
+    if clip is not None:
+        clip.save(args.clip, force=args.force)
     info = summary(world, scene, out, time.perf_counter() - t_start, arch, rendered)
+    if log is not None:
+        info["inputs"] = str(args.inputs)
+        info["player_shots"] = world.player_shots
+    if clip is not None:
+        info["clip"] = str(args.clip)
     if args.stats is not None:
         write_json(args.stats, info, force=args.force)
     print(format_summary(info), flush=True)
+    if log is not None:
+        print(f"  inputs      {args.inputs} ({len(log)} rows, {world.player_shots} player shots)")
+    if clip is not None:
+        print(f"  clip        {args.clip} ({clip.count} frames)")
     if args.stats is not None:
         print(f"  stats       {args.stats}")
     return 0
 
 
-__all__ = ["run", "build_scene", "output_path", "check_outputs", "summary", "format_summary"]
+__all__ = ["run", "check_modes", "build_scene", "output_path", "check_outputs", "summary", "format_summary"]
