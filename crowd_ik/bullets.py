@@ -3,6 +3,9 @@
 All state is `ti.ndarray`s allocated once (per-character outputs when the character count is first
 seen); each phase is one kernel launch from `crowd_ik.kernels.projectiles`. Capsule and character
 inputs may be NumPy arrays (converted and checked here) or `ti.ndarray`s (trusted, as inside the game).
+Small results the host reads every step (the grid's entry count, each character's winning bullet,
+the threats) are NumPy arrays the kernels write directly: on the CPU backend that costs nothing,
+where a `to_numpy` is one more launch (~0.1 ms) per array.
 
 Rules (DESIGN "Game rules"):
 - spawn fills the lowest free slots first; a request larger than the free slots keeps its first
@@ -15,7 +18,11 @@ Rules (DESIGN "Game rules"):
   the same step, a character already hit no longer stops bullets;
 - `advance` sub-steps when a limb moves more than its own radius in a step: k sub-steps of dt / k,
   the limbs linearly interpolated between the previous and the current pose (each sub-step tests
-  the pose at its end), so a fast limb sweeping through a slow bullet is caught.
+  the pose at its end), so a fast limb sweeping through a slow bullet is caught;
+- `advance` bins limbs only into the grid cells a live bullet can reach during the step; given
+  each character's box (`owner_boxes`), characters no bullet can reach are skipped before their
+  limbs are read, and only the limbs of reachable characters count for sub-stepping (a flailing
+  limb across the arena does not sub-step every bullet).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import numpy as np
 from crowd_ik.runtime import ensure_init
 
 MAX_GRID_CELLS = 256  # per axis: the serial prefix sum over at most 65,536 cells stays cheap
+MARK_MARGIN = 0.01  # metres added around a bullet's path when marking the cells it can reach (float rounding)
 
 
 class Hits(NamedTuple):
@@ -101,7 +109,8 @@ class Grid:
     bounds = (x_min, z_min, x_max, z_max) metres; cells are squares of `cell_size` metres, grown so
     that neither axis has more than MAX_GRID_CELLS. Anything outside the bounds clamps to the
     border cells (still correct, just slower there). `entries` starts at `capacity` slots and
-    doubles when a build needs more (the only allocation after construction).
+    doubles when a build needs more (the only allocation after construction). `mask` (nx*nz,)
+    marks the cells a masked build fills (see BulletPool.advance).
     """
 
     def __init__(self, bounds, cell_size: float, capacity: int):
@@ -119,7 +128,8 @@ class Grid:
         self.cell_count = ti.ndarray(ti.i32, shape=(m,))
         self.cell_start = ti.ndarray(ti.i32, shape=(m + 1,))
         self.cursor = ti.ndarray(ti.i32, shape=(m,))
-        self.total = ti.ndarray(ti.i32, shape=(1,))
+        self.mask = ti.ndarray(ti.i32, shape=(m,))
+        self.total = np.zeros(1, np.int32)  # written by the kernel (host memory)
         self.entries = ti.ndarray(ti.i32, shape=(max(1, int(capacity)),))
 
     @property
@@ -127,19 +137,20 @@ class Grid:
         """(ox, oz, cell, nx, nz): the scalar arguments the kernels take."""
         return (self.origin[0], self.origin[1], self.cell, self.nx, self.nz)
 
-    def build(self, a0, b0, a1, b1, radius, pad: float, owner, owner_alive) -> int:
-        """Bin segments (S, 3) x 4 (two poses), grown by radius (S,) + pad; only live owners. Returns entries used."""
+    def build(self, a0, b0, a1, b1, radius, pad: float, owner, owner_alive, masked: bool = False) -> int:
+        """Bin segments (S, 3) x 4 (two poses), grown by radius (S,) + pad; only live owners; with
+        masked=True only into the cells marked in `mask`. Returns entries used."""
         import taichi as ti
 
         from crowd_ik.kernels import projectiles as kp
 
-        kp.clear_cells(self.cell_count)
-        kp.count_cells(a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, self.cell_count)
-        kp.scan_cells(self.cell_count, self.cell_start, self.cursor, self.total)
-        total = int(self.total.to_numpy()[0])
-        if total > self.entries.shape[0]:
+        args = (a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, int(masked), self.mask,
+                self.cell_count, self.cell_start, self.cursor, self.total)
+        kp.build_grid(*args, self.entries)
+        total = int(self.total[0])
+        if total > self.entries.shape[0]:  # rare: grow, and bin again into the larger list
             self.entries = ti.ndarray(ti.i32, shape=(max(total, 2 * self.entries.shape[0]),))
-        kp.fill_cells(a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, self.cursor, self.entries)
+            kp.build_grid(*args, self.entries)
         return total
 
     def pairs(self) -> np.ndarray:
@@ -225,6 +236,14 @@ class BulletPool:
     def count_alive(self) -> int:
         return int(np.count_nonzero(self.alive.to_numpy()))
 
+    def export(self, pos: np.ndarray, vel: np.ndarray, alive: np.ndarray) -> None:
+        """Copy every slot's position, velocity (P, 3) float32 and alive flag (P,) int32 into the
+        caller's C-contiguous NumPy arrays, in one launch (what positions(), velocities() and
+        alive_mask() give in three)."""
+        from crowd_ik.kernels import projectiles as kp
+
+        kp.export_bullets(self.pos, self.vel, self.alive, pos, vel, alive)
+
     def trails(self) -> tuple[np.ndarray, np.ndarray]:
         """(starts, ends), each (M, 3) float32: the live bullets' last segments prev -> pos, for drawing."""
         live = self.alive_mask()
@@ -276,12 +295,15 @@ class BulletPool:
                          n_chars, substeps=1)
 
     def advance(self, dt: float, gravity: float, drag: float, lifetime: float, capsules_a, capsules_b, radii,
-                owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16) -> Hits:
+                owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16,
+                owner_boxes=None) -> Hits:
         """step + collide, sub-stepped: k = substep_count(prev pose, pose) sub-steps of dt / k.
 
         prev_a, prev_b (C, 3): the limbs at the previous step (None: the limbs did not move, k = 1).
         Sub-step j tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
-        number used is left in self.last_substeps.
+        number used is left in self.last_substeps. owner_boxes (n_chars, 4) float32, optional:
+        x_min, z_min, x_max, z_max of each character's limbs in both poses grown by their radii;
+        characters whose box no bullet can reach this step are left out (of sub-step counting too).
         """
         args = (_positive("dt", dt), _non_negative("gravity", gravity), _non_negative("drag", drag),
                 _positive("lifetime", lifetime))
@@ -289,7 +311,7 @@ class BulletPool:
         if prev_a is None or prev_b is None:
             prev_a, prev_b = capsules_a, capsules_b
         return self._run(args, prev_a, prev_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars,
-                         substeps=None, max_substeps=max_substeps)
+                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes)
 
     def threats(self, points, char_alive, horizon: float, reach: float) -> Threats:
         """Per character, the bullet that first passes within `reach` m of points (N, 3) within `horizon` s.
@@ -297,8 +319,6 @@ class BulletPool:
         Straight-line prediction (see kernels.projectiles.find_threats); the bullets are binned by
         their path over the horizon, so each character reads one grid cell.
         """
-        import taichi as ti
-
         from crowd_ik.kernels import projectiles as kp
 
         horizon = _positive("horizon", horizon)
@@ -307,16 +327,15 @@ class BulletPool:
         n = _length(points)
         char_alive = _vector("char_alive", char_alive, n, np.int32)
         if self._threat_out is None or self._threat_out[0].shape[0] != n:
-            self._threat_out = (ti.ndarray(ti.i32, shape=(n,)), ti.ndarray(ti.f32, shape=(n,)),
-                                ti.ndarray(ti.f32, shape=(n,)), ti.ndarray(ti.math.vec3, shape=(n,)),
-                                ti.ndarray(ti.math.vec3, shape=(n,)))
+            self._threat_out = (np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
+                                np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
         out = self._threat_out
         kp.predict_bullets(self.pos, self.vel, horizon, self.bullet_end)
         self.threat_grid.build(self.pos, self.bullet_end, self.pos, self.bullet_end, self._zero, reach,
                                self._ident, self.alive)
         kp.find_threats(points, char_alive, self.pos, self.vel, self.alive, horizon, reach,
                         *self.threat_grid.geometry, self.threat_grid.cell_start, self.threat_grid.entries, *out)
-        return Threats(*(o.to_numpy() for o in out))
+        return Threats(*(o.copy() for o in out))
 
     # -- internals ----------------------------------------------------------------------------
 
@@ -324,11 +343,13 @@ class BulletPool:
         import taichi as ti
 
         if n_chars != self._n_chars:
-            self.hit_key = ti.ndarray(ti.i64, shape=(n_chars,))     # (N,) winning key, NO_HIT when none
-            self.hit_bullet = ti.ndarray(ti.i32, shape=(n_chars,))  # (N,) winning bullet slot, -1 when none
+            self.hit_key = ti.ndarray(ti.i64, shape=(n_chars,))  # (N,) winning key, NO_HIT when none
+            self.hit_bullet = np.zeros(n_chars, np.int32)        # (N,) winning bullet slot, -1 when none (host)
+            self._reachable = ti.ndarray(ti.i32, shape=(n_chars,))  # (N,) live and within a bullet's reach
             self._n_chars = n_chars
 
-    def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16) -> Hits:
+    def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16,
+             owner_boxes=None) -> Hits:
         from crowd_ik.kernels import projectiles as kp
 
         if isinstance(n_chars, bool) or not isinstance(n_chars, (int, np.integer)) or n_chars < 1:
@@ -347,17 +368,29 @@ class BulletPool:
         if isinstance(owner, np.ndarray) and n_caps and (owner.min() < 0 or owner.max() >= n_chars):
             bad = owner[(owner < 0) | (owner >= n_chars)][0]
             raise ValueError(f"owner: expected character ids in [0, {n_chars}) (got {bad})")
+        if owner_boxes is not None and not _is_ndarray(owner_boxes):
+            owner_boxes = np.ascontiguousarray(owner_boxes, dtype=np.float32)
+            if owner_boxes.shape != (n_chars, 4) or not np.all(np.isfinite(owner_boxes)):
+                raise ValueError(f"owner_boxes: expected finite values of shape ({n_chars}, 4) "
+                                 f"(got {owner_boxes.shape})")
         if n_caps == 0:  # nothing to hit: bullets only fly
             a0 = b0 = a1 = b1 = np.zeros((1, 3), np.float32)
             radii = np.ones(1, np.float32)
             owner = np.zeros(1, np.int32)
             char_alive = np.zeros(n_chars, np.int32)
+            owner_boxes = None
+        self._characters(n_chars)
+        grid = self.limb_grid
+        if step_args is not None:  # only the cells the bullets can reach this step take limbs
+            kp.mark_bullet_cells(self.pos, self.vel, self.alive, step_args[0], self.radius + MARK_MARGIN,
+                                 *grid.geometry, grid.mask)
+            if owner_boxes is not None:
+                kp.reachable_owners(owner_boxes, char_alive, *grid.geometry, grid.mask, self._reachable)
+                char_alive = self._reachable
         if substeps is None:
             substeps = substep_count(a0, b0, a1, b1, radii, owner, char_alive, max_substeps)
         self.last_substeps = substeps
-        self._characters(n_chars)
-        grid = self.limb_grid
-        grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive)
+        grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
         kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
         for j in range(substeps):
             if step_args is not None:
@@ -369,7 +402,8 @@ class BulletPool:
                                char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,
                                self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point)
             kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
-        hit_bullet = self.hit_bullet.to_numpy()
-        chars = np.flatnonzero(hit_bullet >= 0).astype(np.int32)
-        bullets = hit_bullet[chars]
+        chars = np.flatnonzero(self.hit_bullet >= 0).astype(np.int32)
+        bullets = self.hit_bullet[chars]
+        if len(chars) == 0:
+            return Hits(chars, bullets, np.zeros(0, np.float32), np.zeros((0, 3), np.float32))
         return Hits(chars, bullets, self.bullet_toi.to_numpy()[bullets], self.bullet_point.to_numpy()[bullets])

@@ -5,8 +5,10 @@ velocities in m/s; times in seconds.
 
 Phases (one launch each; `crowd_ik.bullets.BulletPool` runs them in this order):
   integrate_bullets                      semi-implicit Euler with gravity and quadratic drag
-  clear_cells, count_cells, scan_cells,  broad phase: a uniform grid on (x, z) built with integer
-  fill_cells                             atomics only (count, exclusive prefix sum, scatter)
+  mark_bullet_cells, reachable_owners,   broad phase: a uniform grid on (x, z) built with integer
+  build_grid                             atomics only (count, exclusive prefix sum, scatter), in
+                                         the cells the bullets can reach, of the owners that
+                                         have a segment there
   reset_hits, collide_bullets,           narrow phase: earliest time of impact per bullet, then one
   apply_hits                             winner per character by an int64 atomic_min on
                                          key = (sub-step, quantised toi) << 32 | bullet id
@@ -117,15 +119,14 @@ def swept_box(a0, b0, a1, b1, pad):
     return lo[0], lo[2], hi[0], hi[2]
 
 
-@ti.kernel
-def clear_cells(cell_count: ndarray(dtype=ti.i32, ndim=1)):
-    """cell_count (nx*nz,) <- 0."""
-    for c in range(cell_count.shape[0]):
-        cell_count[c] = 0
+@ti.func
+def cell_ok(masked, mask: ti.template(), m):
+    """Whether cell m takes segments: every cell, or with masked != 0 only the marked ones."""
+    return masked == 0 or mask[m] != 0
 
 
 @ti.kernel
-def count_cells(
+def build_grid(
     a0: ndarray(dtype=vec3, ndim=1),
     b0: ndarray(dtype=vec3, ndim=1),
     a1: ndarray(dtype=vec3, ndim=1),
@@ -139,13 +140,31 @@ def count_cells(
     cell: float,
     nx: ti.i32,
     nz: ti.i32,
+    masked: ti.i32,
+    mask: ndarray(dtype=ti.i32, ndim=1),
     cell_count: ndarray(dtype=ti.i32, ndim=1),
+    cell_start: ndarray(dtype=ti.i32, ndim=1),
+    cursor: ndarray(dtype=ti.i32, ndim=1),
+    total: ndarray(dtype=ti.i32, ndim=1),
+    entries: ndarray(dtype=ti.i32, ndim=1),
 ):
-    """Add 1 to cell_count for every cell each live segment's box overlaps.
+    """Bin every live segment into the cells its box overlaps, in one launch of four phases.
 
     Segment s (a0, b0, a1, b1: (S, 3)) is the union of its two poses (a0, b0) and (a1, b1) grown
-    by radius[s] + pad; it is live when owner_alive[owner[s]] != 0.
+    by radius[s] + pad; it is live when owner_alive[owner[s]] != 0. With masked != 0 only cells
+    with mask[c] != 0 (nx*nz,) take segments (cells nobody will read stay empty).
+      1. cell_count (nx*nz,) <- 0;
+      2. cell_count[c] += 1 for every (live segment, cell) pair (integer atomics);
+      3. exclusive prefix sum: cell_start (M+1,), cursor (M,) <- start of each cell; total (1,) <-
+         number of pairs. A serial loop: grids here have at most 256 x 256 cells;
+      4. each pair writes its segment id at entries[atomic_add(cursor[c], 1)], only while that
+         index is below entries.shape[0]: when total exceeds the capacity the caller grows
+         entries and builds again.
+    entries[cell_start[c] : cell_start[c+1]] then holds cell c's segment ids, in an order that may
+    vary between runs (atomic cursor); every consumer takes an order-free minimum over them.
     """
+    for c in range(cell_count.shape[0]):
+        cell_count[c] = 0
     for s in range(a0.shape[0]):
         if owner_alive[owner[s]] != 0:
             x0, z0, x1, z1 = swept_box(a0[s], b0[s], a1[s], b1[s], radius[s] + pad)
@@ -153,20 +172,8 @@ def count_cells(
             k0, k1 = cell_span(z0, z1, oz, cell, nz)
             for k in range(k0, k1 + 1):
                 for i in range(i0, i1 + 1):
-                    ti.atomic_add(cell_count[k * nx + i], 1)
-
-
-@ti.kernel
-def scan_cells(
-    cell_count: ndarray(dtype=ti.i32, ndim=1),
-    cell_start: ndarray(dtype=ti.i32, ndim=1),
-    cursor: ndarray(dtype=ti.i32, ndim=1),
-    total: ndarray(dtype=ti.i32, ndim=1),
-):
-    """Exclusive prefix sum: cell_start (M+1,), cursor (M,) <- start of each cell; total (1,) <- sum.
-
-    A serial loop (grids here have at most 256 x 256 cells: well under a millisecond).
-    """
+                    if cell_ok(masked, mask, k * nx + i):
+                        ti.atomic_add(cell_count[k * nx + i], 1)
     for _ in range(1):
         acc = 0
         for c in range(cell_count.shape[0]):
@@ -175,31 +182,6 @@ def scan_cells(
             acc += cell_count[c]
         cell_start[cell_count.shape[0]] = acc
         total[0] = acc
-
-
-@ti.kernel
-def fill_cells(
-    a0: ndarray(dtype=vec3, ndim=1),
-    b0: ndarray(dtype=vec3, ndim=1),
-    a1: ndarray(dtype=vec3, ndim=1),
-    b1: ndarray(dtype=vec3, ndim=1),
-    radius: ndarray(ndim=1),
-    pad: float,
-    owner: ndarray(dtype=ti.i32, ndim=1),
-    owner_alive: ndarray(dtype=ti.i32, ndim=1),
-    ox: float,
-    oz: float,
-    cell: float,
-    nx: ti.i32,
-    nz: ti.i32,
-    cursor: ndarray(dtype=ti.i32, ndim=1),
-    entries: ndarray(dtype=ti.i32, ndim=1),
-):
-    """Write each live segment's id into the lists of the cells count_cells counted it in.
-
-    entries[cell_start[c] : cell_start[c+1]] then holds cell c's segment ids, in an order that may
-    vary between runs (atomic cursor); every consumer takes an order-free minimum over them.
-    """
     for s in range(a0.shape[0]):
         if owner_alive[owner[s]] != 0:
             x0, z0, x1, z1 = swept_box(a0[s], b0[s], a1[s], b1[s], radius[s] + pad)
@@ -207,8 +189,74 @@ def fill_cells(
             k0, k1 = cell_span(z0, z1, oz, cell, nz)
             for k in range(k0, k1 + 1):
                 for i in range(i0, i1 + 1):
-                    entries[ti.atomic_add(cursor[k * nx + i], 1)] = s
+                    if cell_ok(masked, mask, k * nx + i):
+                        slot = ti.atomic_add(cursor[k * nx + i], 1)
+                        if slot < entries.shape[0]:
+                            entries[slot] = s
 
+
+@ti.kernel
+def mark_bullet_cells(
+    pos: ndarray(dtype=vec3, ndim=1),
+    vel: ndarray(dtype=vec3, ndim=1),
+    alive: ndarray(dtype=ti.i32, ndim=1),
+    dt: float,
+    pad: float,
+    ox: float,
+    oz: float,
+    cell: float,
+    nx: ti.i32,
+    nz: ti.i32,
+    mask: ndarray(dtype=ti.i32, ndim=1),
+):
+    """mask (nx*nz,) <- 1 on the cells the live bullets can cross in the next dt seconds, else 0.
+
+    A bullet's (x, z) path over the step is the segment pos -> pos + vel dt or part of it (gravity
+    acts along y only; drag only shortens the velocity, never turns it in x, z), so the cells of
+    that segment's box grown by `pad` (the bullet radius plus a rounding margin) hold every cell
+    collide_bullets walks on any sub-step of the step.
+    """
+    for c in range(mask.shape[0]):
+        mask[c] = 0
+    for p in range(pos.shape[0]):
+        if alive[p] != 0:
+            q0 = pos[p]
+            q1 = q0 + vel[p] * dt
+            x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, pad)
+            i0, i1 = cell_span(x0, x1, ox, cell, nx)
+            k0, k1 = cell_span(z0, z1, oz, cell, nz)
+            for k in range(k0, k1 + 1):
+                for i in range(i0, i1 + 1):
+                    mask[k * nx + i] = 1
+
+
+@ti.kernel
+def reachable_owners(
+    owner_box: ndarray(ndim=2),
+    owner_alive: ndarray(dtype=ti.i32, ndim=1),
+    ox: float,
+    oz: float,
+    cell: float,
+    nx: ti.i32,
+    nz: ti.i32,
+    mask: ndarray(dtype=ti.i32, ndim=1),
+    reachable: ndarray(dtype=ti.i32, ndim=1),
+):
+    """reachable (N,) <- 1 for each live owner whose (x, z) box overlaps a marked cell, else 0.
+
+    owner_box (N, 4): x_min, z_min, x_max, z_max of all of an owner's segments in both poses,
+    grown by their radii, so an owner that is not reachable has no segment in a marked cell.
+    """
+    for n in range(owner_box.shape[0]):
+        hit = 0
+        if owner_alive[n] != 0:
+            i0, i1 = cell_span(owner_box[n, 0], owner_box[n, 2], ox, cell, nx)
+            k0, k1 = cell_span(owner_box[n, 1], owner_box[n, 3], oz, cell, nz)
+            for k in range(k0, k1 + 1):
+                for i in range(i0, i1 + 1):
+                    if mask[k * nx + i] != 0:
+                        hit = 1
+        reachable[n] = hit
 
 # ---------------------------------------------------------------------------------------------
 # narrow phase
@@ -410,12 +458,16 @@ def count_substeps(
     """out[0] <- max(out[0], max over live limbs of ceil(max(|a1 - a0|, |b1 - b0|) / radius)).
 
     The number of sub-steps after which no limb end moves more than its own radius per sub-step
-    (integer atomic_max, so no float atomics). Capped at 2^20 before the cast.
+    (integer atomic_max, so no float atomics). Capped at 2^20 before the cast. A limb only
+    issues the atomic when it beats the value it reads (out[0] only grows, so a stale read just
+    costs an extra atomic): hundreds of thousands of limbs then do not queue on one address.
     """
     for c in range(a0.shape[0]):
         if char_alive[owner[c]] != 0:
             move = ti.max((a1[c] - a0[c]).norm(), (b1[c] - b0[c]).norm())
-            ti.atomic_max(out[0], ti.cast(ti.ceil(ti.min(move / radius[c], 1048576.0)), ti.i32))
+            k = ti.cast(ti.ceil(ti.min(move / radius[c], 1048576.0)), ti.i32)
+            if k > out[0]:
+                ti.atomic_max(out[0], k)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -501,3 +553,20 @@ def find_threats(
             threat_miss[n] = -1.0
             threat_point[n] = vec3(0.0, 0.0, 0.0)
             threat_dir[n] = vec3(0.0, 0.0, 0.0)
+
+
+@ti.kernel
+def export_bullets(
+    pos: ndarray(dtype=vec3, ndim=1),
+    vel: ndarray(dtype=vec3, ndim=1),
+    alive: ndarray(dtype=ti.i32, ndim=1),
+    pos_out: ndarray(dtype=vec3, ndim=1),
+    vel_out: ndarray(dtype=vec3, ndim=1),
+    alive_out: ndarray(dtype=ti.i32, ndim=1),
+):
+    """pos_out, vel_out (P, 3) <- pos, vel; alive_out (P,) <- alive: the pool's state copied out in
+    one launch (the outputs are usually host NumPy arrays)."""
+    for p in range(pos.shape[0]):
+        pos_out[p] = pos[p]
+        vel_out[p] = vel[p]
+        alive_out[p] = alive[p]

@@ -89,6 +89,50 @@ def test_grid_matches_twin_including_outside_bounds():
     assert np.all(want[np.isin(want[:, 1], beyond), 0] % 8 == 7)
 
 
+def _ndarray(x):
+    """A ti.ndarray copy of a (P, 3) float32 or (P,) int32 NumPy array."""
+    import taichi as ti
+
+    arr = ti.ndarray(ti.math.vec3, shape=x.shape[:1]) if x.ndim == 2 else ti.ndarray(ti.i32, shape=x.shape)
+    arr.from_numpy(x)
+    return arr
+
+
+def test_masked_grid_keeps_only_the_cells_bullets_can_reach():
+    rng = np.random.default_rng(12)
+    a, b, radius, owner = _capsules(rng, 40, 4, spread=7.0)
+    char_alive = (rng.random(40) < 0.8).astype(np.int32)
+    pos, vel, _, alive = _bullets(rng, 30)
+    pos[:, 0] *= 2.0  # some bullets beyond the bounds: they mark border cells
+    pos_t, vel_t, alive_t = (_ndarray(x) for x in (pos, vel, alive))
+    grid = Grid((-4.0, -4.0, 4.0, 4.0), 1.0, capacity=8)
+    kp.mark_bullet_cells(pos_t, vel_t, alive_t, 0.05, 0.04, *grid.geometry, grid.mask)
+    mask = ref.bullet_cells(pos, vel, alive, 0.05, 0.04, *grid.geometry)
+    np.testing.assert_array_equal(grid.mask.to_numpy(), mask)
+    assert 0 < mask.sum() < len(mask)
+    total = grid.build(a, b, a, b, radius, 0.0, owner, char_alive, masked=True)
+    want = ref.grid_pairs(a, b, a, b, radius, 0.0, owner, char_alive, *grid.geometry, cell_mask=mask)
+    assert total == len(want) > 8
+    np.testing.assert_array_equal(grid.pairs(), want)
+    # an unmasked build afterwards fills every cell again
+    assert grid.build(a, b, a, b, radius, 0.0, owner, char_alive) > total
+
+
+def test_export_copies_the_pool_state_in_one_launch():
+    rng = np.random.default_rng(13)
+    pos, vel, _, _ = _bullets(rng, 50)
+    pos[:, 1] = 1.0  # none falls below y = -1 on this step
+    pool = BulletPool(64)
+    pool.spawn(pos, vel)
+    pool.step(DT, lifetime=10.0)
+    out = np.zeros((64, 3), np.float32), np.zeros((64, 3), np.float32), np.zeros(64, np.int32)
+    pool.export(*out)
+    np.testing.assert_array_equal(out[0], pool.positions())
+    np.testing.assert_array_equal(out[1], pool.velocities())
+    np.testing.assert_array_equal(out[2] != 0, pool.alive_mask())
+    assert out[2].sum() == 50
+
+
 def _scene(seed, p=300, n_chars=30, per_char=4):
     rng = np.random.default_rng(seed)
     a, b, radius, owner = _capsules(rng, n_chars, per_char)
@@ -322,6 +366,68 @@ def test_advance_without_previous_pose_equals_step_then_collide():
     assert len(results[0][0].chars) > 5
     for x, y in zip(results[0][0] + results[0][1:], results[1][0] + results[1][1:]):
         np.testing.assert_array_equal(x, y)
+
+
+def _owner_boxes(a0, b0, a1, b1, radius, owner, n_chars):
+    """(n_chars, 4) x_min, z_min, x_max, z_max of each owner's capsules in both poses, grown by radius."""
+    pts = np.stack([a0, b0, a1, b1])[..., [0, 2]]  # (4, C, 2)
+    lo = pts.min(axis=0) - radius[:, None]
+    hi = pts.max(axis=0) + radius[:, None]
+    box = np.zeros((n_chars, 4), np.float32)
+    box[:, :2], box[:, 2:] = np.inf, -np.inf
+    np.minimum.at(box[:, :2], owner, lo)
+    np.maximum.at(box[:, 2:], owner, hi)
+    return box
+
+
+def test_reachable_owners_match_twin():
+    rng = np.random.default_rng(14)
+    n = 60
+    centre = rng.uniform(-6, 6, (n, 2))
+    half = rng.uniform(0.1, 1.5, (n, 2))
+    box = _f32(np.hstack([centre - half, centre + half]))
+    owner_alive = (rng.random(n) < 0.8).astype(np.int32)
+    grid = Grid((-5.0, -5.0, 5.0, 5.0), 1.0, capacity=8)
+    mask = (rng.random(grid.nx * grid.nz) < 0.1).astype(np.int32)
+    grid.mask.from_numpy(mask)
+    got = np.zeros(n, np.int32)
+    kp.reachable_owners(box, owner_alive, *grid.geometry, grid.mask, got)
+    want = ref.reachable_owners(box, owner_alive, mask, *grid.geometry)
+    np.testing.assert_array_equal(got, want)
+    assert 5 < want.sum() < owner_alive.sum()
+
+
+def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
+    start, end, a, b, radius, owner, char_alive = _scene(15, p=120)
+    n = len(char_alive)
+    vel = _f32((end - start) * 60.0)
+    # one more character 40 m away swings a limb 3 m in the step: nothing can reach it
+    a = _f32(np.vstack([a, [[40.0, 1.0, 40.0]]]))
+    b = _f32(np.vstack([b, [[40.0, 1.5, 40.0]]]))
+    prev_a, prev_b = a.copy(), b.copy()
+    prev_a[-1, 0] -= 3.0
+    prev_b[-1, 0] -= 3.0
+    radius = _f32(np.append(radius, 0.05))
+    owner = np.append(owner, n).astype(np.int32)
+    char_alive = np.append(char_alive, 1).astype(np.int32)
+    boxes = _owner_boxes(prev_a, prev_b, a, b, radius, owner, n + 1)
+    results = []
+    for use_boxes in (False, True):
+        pool = BulletPool(len(start), bounds=(-50, -50, 50, 50))
+        pool.spawn(start, vel)
+        hits = pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, owner, char_alive, n + 1, prev_a=prev_a,
+                            prev_b=prev_b, max_substeps=64, owner_boxes=boxes if use_boxes else None)
+        results.append((pool.last_substeps, hits, pool.struck()))
+    assert results[0][0] == 60  # ceil(3 m / 0.05 m): the far limb sub-steps every bullet
+    assert results[1][0] == 1  # ... unless the pool knows no bullet can reach it
+    # the near limbs did not move: the same winners either way (toi up to the gravity integration of
+    # 60 sub-steps; losers differ: on later sub-steps a character already hit no longer stops bullets)
+    (_, h0, s0), (_, h1, s1) = results
+    assert len(h1.chars) > 5
+    np.testing.assert_array_equal(h0.chars, h1.chars)
+    np.testing.assert_array_equal(h0.bullets, h1.bullets)
+    np.testing.assert_array_equal(s0[h0.bullets], s1[h1.bullets])
+    np.testing.assert_allclose(h0.toi, h1.toi, atol=1e-3)
 
 
 def test_threats_match_twin():

@@ -46,11 +46,11 @@ def cell_span(lo, hi, origin, cell, n):
     return i0, i1
 
 
-def grid_pairs(a0, b0, a1, b1, radius, pad, owner, owner_alive, ox, oz, cell, nx, nz):
+def grid_pairs(a0, b0, a1, b1, radius, pad, owner, owner_alive, ox, oz, cell, nx, nz, cell_mask=None):
     """(cell, segment) pairs of the grid as a (K, 2) int64 array sorted by cell then segment.
 
     Segment s covers the cells its two poses' (x, z) box, grown by radius[s] + pad, overlaps;
-    dead owners' segments are left out.
+    dead owners' segments are left out; with cell_mask (nx*nz,) only cells marked non-zero are kept.
     """
     pts = np.stack([a0, b0, a1, b1])
     grow = (np.asarray(radius, np.float64) + pad)[:, None]
@@ -66,8 +66,37 @@ def grid_pairs(a0, b0, a1, b1, radius, pad, owner, owner_alive, ox, oz, cell, nx
     ix = i0[seg] + local % np.repeat(wi, wi * wk)
     iz = k0[seg] + local // np.repeat(wi, wi * wk)
     pairs = np.stack([iz * nx + ix, seg], axis=1)
+    if cell_mask is not None:
+        pairs = pairs[np.asarray(cell_mask)[pairs[:, 0]] != 0]
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
+
+def bullet_cells(pos, vel, alive, dt, pad, ox, oz, cell, nx, nz):
+    """(nx*nz,) int32 mask of the cells the live bullets' boxes pos -> pos + vel dt, grown by pad, overlap."""
+    pos, vel = np.asarray(pos, np.float64), np.asarray(vel, np.float64)
+    live = np.asarray(alive) != 0
+    end = pos + vel * dt
+    lo = np.minimum(pos, end)[live] - pad
+    hi = np.maximum(pos, end)[live] + pad
+    i0, i1 = cell_span(lo[:, 0], hi[:, 0], ox, cell, nx)
+    k0, k1 = cell_span(lo[:, 2], hi[:, 2], oz, cell, nz)
+    ix, iz = np.arange(nx), np.arange(nz)
+    in_x = (ix >= i0[:, None]) & (ix <= i1[:, None])  # (B, nx)
+    in_z = (iz >= k0[:, None]) & (iz <= k1[:, None])  # (B, nz)
+    return np.any(in_z[:, :, None] & in_x[:, None, :], axis=0).astype(np.int32).reshape(-1)
+
+
+def reachable_owners(owner_box, owner_alive, mask, ox, oz, cell, nx, nz):
+    """(N,) int32: 1 for live owners whose (x, z) box (N, 4) overlaps a cell marked in mask (nx*nz,)."""
+    box = np.asarray(owner_box, np.float64)
+    i0, i1 = cell_span(box[:, 0], box[:, 2], ox, cell, nx)
+    k0, k1 = cell_span(box[:, 1], box[:, 3], oz, cell, nz)
+    marked = np.asarray(mask).reshape(nz, nx) != 0
+    ix, iz = np.arange(nx), np.arange(nz)
+    in_x = (ix >= i0[:, None]) & (ix <= i1[:, None])  # (N, nx)
+    in_z = (iz >= k0[:, None]) & (iz <= k1[:, None])  # (N, nz)
+    hit = np.any(in_z[:, :, None] & in_x[:, None, :] & marked[None], axis=(1, 2))
+    return (hit & (np.asarray(owner_alive) != 0)).astype(np.int32)
 
 def point_segment_distance(p, a, b):
     """Distance from points p to segments [a, b] (broadcast over leading axes)."""
