@@ -445,6 +445,7 @@ class LiveResult:
     shown: int  # window frames, paused ones included
     wall_s: float
     mean_fps: float  # simulated frames per wall second while not paused, after the first WARMUP
+    median_fps: float  # 1 / the median time of those frames (kernels compiled mid-game left out)
     player_start: list
     player_end: list
 
@@ -462,7 +463,7 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
     gui.fps_limit = max(1, int(math.ceil(fps)))
     start = world.player_position()
     paused = False
-    shown, fps_ema, t_run, timed = 0, None, 0.0, 0
+    shown, fps_ema, times = 0, None, []
     t0 = t_last = time.perf_counter()
     picture = world.render()
     try:
@@ -492,8 +493,7 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
             now = time.perf_counter()
             dt, t_last = now - t_last, now
             if not paused and len(session.log) > WARMUP:  # the first frames compile kernels
-                t_run += dt
-                timed += 1
+                times.append(dt)
             fps_ema = 1.0 / max(dt, 1e-6) if fps_ema is None else fps_ema + 0.1 * (1.0 / max(dt, 1e-6) - fps_ema)
             state = "PAUSED (Space to go on)" if paused else f"time x{world.time_scale:.2f}"
             overlay = draw_overlay(picture.copy(), [f"fps {fps_ema:.1f}   {state}", LEGEND], cursor=(px, py))
@@ -503,7 +503,9 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
     finally:
         gui.close()
     frames = len(session.log)
-    return LiveResult(frames, shown, time.perf_counter() - t0, timed / t_run if t_run > 0 else 0.0,
+    mean = len(times) / sum(times) if times else 0.0
+    median = 1.0 / float(np.median(times)) if times else 0.0
+    return LiveResult(frames, shown, time.perf_counter() - t0, mean, median,
                       start.tolist(), world.player_position().tolist())
 
 
@@ -543,13 +545,13 @@ def run(args) -> int:
         if args.record is not None and session.log:
             write_inputs(args.record, session.log, scene_settings(scene), force=args.force)
     print(f"{scene.name} live: {result.frames} frames played ({result.shown} shown) in {result.wall_s:.1f} s, "
-          f"{result.mean_fps:.1f} fps while playing; hits {world.hits}, dodges {world.dodges}, "
+          f"{result.mean_fps:.1f} fps while playing (median {result.median_fps:.1f}); hits {world.hits}, dodges {world.dodges}, "
           f"shots {world.player_shots}")
     if args.record is not None:
         print(f"  inputs      {args.record}" if result.frames else "  inputs      none recorded (no frame played)")
     if args.stats is not None:
         info = summary(world, scene, args.record or "(window)", result.wall_s, arch, result.frames)
-        info.update(live_fps=result.mean_fps, shown=result.shown, player_shots=world.player_shots,
+        info.update(live_fps=result.mean_fps, live_median_fps=result.median_fps, shown=result.shown, player_shots=world.player_shots,
                     player_start=result.player_start, player_end=result.player_end)
         write_json(args.stats, info, force=args.force)
         print(f"  stats       {args.stats}")
