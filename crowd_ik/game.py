@@ -251,6 +251,18 @@ def _stance_fk(rig: Rig, angles: np.ndarray) -> np.ndarray:
     return np.asarray(pos[0], np.float64)
 
 
+def _ndarray(value: np.ndarray):
+    """A Taichi ndarray holding a copy of `value`: (n, 3) float32 as n vec3, other arrays element-wise."""
+    import taichi as ti
+
+    if value.dtype == np.float32 and value.ndim == 2 and value.shape[1] == 3:
+        arr = ti.ndarray(ti.math.vec3, shape=value.shape[:1])
+    else:
+        arr = ti.ndarray(ti.i32 if value.dtype == np.int32 else ti.f32, shape=value.shape)
+    arr.from_numpy(np.ascontiguousarray(value))
+    return arr
+
+
 def _make_rig(kind: str, scale: float) -> Rig:
     if kind == "humanoid":
         return Rig.humanoid(1.75 * scale)
@@ -504,11 +516,20 @@ class World:
         self._tracked_serial = np.full(N, -1, np.int64)
         self._char_orient = np.ascontiguousarray(np.broadcast_to(b.orient, (N, E, 3)), np.float32)
         self._char_weights = np.ascontiguousarray(np.broadcast_to(b.weights, (N, E)), np.float32)
-        self._owner = np.ascontiguousarray(np.repeat(np.arange(N, dtype=np.int32), B))
-        self._cap_radius = np.ascontiguousarray(np.tile(b.bone_radius, N))
-        self._joints = self.crowd.joint_positions().astype(np.float32)  # (N, J, 3) now
-        self._joints_prev = self._joints.copy()
-        self._caps_prev = None
+        # limbs for the bullet pool, kept in Taichi ndarrays: capsule n * B + k is character n's bone k
+        self._owner = _ndarray(np.repeat(np.arange(N, dtype=np.int32), B))
+        self._cap_radius = _ndarray(np.tile(b.bone_radius, N))
+        self._bone_parent = _ndarray(b.bone_parent.astype(np.int32))
+        self._bone_radius = _ndarray(b.bone_radius)
+        self._caps = [(_ndarray(np.zeros((N * B, 3), np.float32)), _ndarray(np.zeros((N * B, 3), np.float32)))
+                      for _ in range(2)]  # this step's and the previous step's capsule ends, alternating
+        self._caps_now = 0
+        self._owner_box = _ndarray(np.zeros((N, 4), np.float32))
+        self._joint_bufs = (np.zeros((N, b.rig.n_joints, 3), np.float32), np.zeros((N, b.rig.n_joints, 3), np.float32))
+        self._joints = self._joint_bufs[0]
+        for _ in range(2):  # both capsule sets hold the starting pose
+            self._update_limbs()
+        self._joints_prev = self._joints  # (N, J, 3) now and at the previous step (host)
 
         # shooters: humanoids at the characters' scale, aiming with the right hand
         cam = scene.camera
@@ -554,6 +575,7 @@ class World:
         self._bpos_prev = np.zeros((P, 3), np.float32)
         self._bvel = np.zeros((P, 3), np.float32)
         self._balive = np.zeros(P, bool)
+        self._balive_i32 = np.zeros(P, np.int32)  # the pool's alive flags, exported each step
         self._serial = 0
 
         # shards: a ring of pieces, SHARD_PIECES per bone of MAX_SHATTERED characters
@@ -677,8 +699,8 @@ class World:
     def step_world(self) -> None:
         """One fixed world step of DT seconds (shooters, threats and dodges, IK, bullets and hits, shards)."""
         self._joints_prev, self._shooter_joints_prev = self._joints, self._shooter_joints
-        self._bpos_prev = self._bpos.copy()
-        self._sh_c_prev = self._sh_c.copy()
+        np.copyto(self._bpos_prev, self._bpos)
+        np.copyto(self._sh_c_prev, self._sh_c)
         self._shooters_aim_and_fire()
         self._dodge()
         self._solve_characters()
@@ -879,25 +901,33 @@ class World:
         self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
                          weights=weights, orientations=self._char_orient)
         self._phase_ms["ik"] += 1e3 * (time.perf_counter() - t0)
-        self._joints = self.crowd.joint_positions().astype(np.float32)
+        self._update_limbs()
 
     # ------------------------------------------------------------------ bullets, hits, shards
-    def _capsules(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Limb capsule ends (N * B, 3) x 2 of every character (dead ones included; masked by owner)."""
-        a = joints[:, self.body.bone_parent].reshape(-1, 3)
-        bb = joints[:, 1:].reshape(-1, 3)
-        return np.ascontiguousarray(a), np.ascontiguousarray(bb)
+    def _update_limbs(self) -> None:
+        """From the crowd's solved pose, in one launch: the limb capsules (N * B of them, dead
+        characters included; the pool masks them by owner) into the next capsule set, the host
+        joints (N, J, 3) into the buffer that `_joints` does not hold, and each character's box
+        over this and the previous step's capsules."""
+        from crowd_ik.kernels import game_kernels as gk
+
+        prev_a, prev_b = self._caps[self._caps_now]
+        self._caps_now = 1 - self._caps_now
+        a, b = self._caps[self._caps_now]
+        joints = self._joint_bufs[1] if self._joints is self._joint_bufs[0] else self._joint_bufs[0]
+        gk.limb_capsules(self.crowd.world_pos, self._bone_parent, self._bone_radius, prev_a, prev_b, a, b, joints,
+                         self._owner_box)
+        self._joints = joints
 
     def _bullets_and_hits(self) -> None:
         bl = self.scene.bullets
-        a, b = self._capsules(self._joints)
-        prev_a, prev_b = (a, b) if self._caps_prev is None else self._caps_prev
+        a, b = self._caps[self._caps_now]
+        prev_a, prev_b = self._caps[1 - self._caps_now]
         hits = self.pool.advance(DT, bl.gravity, bl.drag, bl.lifetime, a, b, self._cap_radius, self._owner,
-                                 self.alive.astype(np.int32), self.n, prev_a=prev_a, prev_b=prev_b)
-        self._caps_prev = (a, b)
-        self._bpos = self.pool.positions()
-        self._bvel = self.pool.velocities()
-        self._balive = self.pool.alive_mask()
+                                 self.alive.astype(np.int32), self.n, prev_a=prev_a, prev_b=prev_b,
+                                 owner_boxes=self._owner_box)
+        self.pool.export(self._bpos, self._bvel, self._balive_i32)
+        np.not_equal(self._balive_i32, 0, out=self._balive)
         if len(hits.chars):
             chars = hits.chars.astype(np.intp)
             self.alive[chars] = False
