@@ -127,7 +127,8 @@ class ClipRecorder:
         if characters is not None:
             characters = np.asarray(characters, np.int64).reshape(-1)
             if characters.size == 0 or characters.min() < 0 or characters.max() >= n_chars:
-                raise ValueError(f"{what}: character indices must be in [0, {n_chars - 1}] (got {characters.tolist()[:8]})")
+                raise ValueError(f"{what}: character indices must be in [0, {n_chars - 1}] "
+                                 f"(got {characters.tolist()[:8]})")
         need = clip_bytes(world, frames, characters)
         if need > MAX_CLIP_BYTES:
             raise ValueError(f"{what}: {frames} frames of {n_chars} characters take {need / 2**30:.1f} GiB "

@@ -117,7 +117,8 @@ def run_bvh(args) -> int:
     if args.output is not None:
         raise ValueError(f"-o: with --bvh the output is the --bvh file (got -o {args.output})")
     if args.frame != 0:
-        raise ValueError(f"--frame: picks the .glb's frame; with --bvh give the length with --frames N (got --frame {args.frame})")
+        raise ValueError(f"--frame: picks the .glb's frame; with --bvh give the length with --frames N "
+                         f"(got --frame {args.frame})")
     if args.character < 0:
         raise ValueError(f"--character: must be zero or a positive integer (got {args.character})")
     if args.frames is not None and args.frames < 1:
@@ -162,7 +163,8 @@ def run(args) -> int:
     if getattr(args, "bvh", None):
         return run_bvh(args)
     if getattr(args, "frames", None) is not None:
-        raise ValueError(f"--frames: only with --bvh; a .glb is one frame, chosen with --frame K (got --frames {args.frames})")
+        raise ValueError(f"--frames: only with --bvh; a .glb is one frame, chosen with --frame K "
+                         f"(got --frames {args.frames})")
     if args.frame < 0:
         raise ValueError(f"--frame: must be zero or a positive integer (got {args.frame})")
     scene = load_scene(args.scene)

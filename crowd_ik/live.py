@@ -102,7 +102,7 @@ class SteeredWalker(Walker):
     heading), and IK holds the right hand ARM_REACH from the shoulder on the line to the aim.
     """
 
-    def __init__(self, walker: Walker):  # noqa: super().__init__ would restart the path walk
+    def __init__(self, walker: Walker):  # not super().__init__: that would restart the path walk
         self.__dict__.update(vars(walker))
         self.velocity = np.zeros(2)  # m/s in x, z
         self.aim: np.ndarray | None = None
@@ -319,7 +319,8 @@ def load_inputs(path) -> InputLog:
         if len(rows) > MAX_ROWS:
             raise ValueError(f"{path}:{number}: more than {MAX_ROWS} rows (got more)")
     if not header_seen:
-        raise ValueError(f"{path}:{len(lines) + 1}: expected the header {','.join(HEADER)} (got {'an empty file' if not lines else 'only comments'})")
+        got = "an empty file" if not lines else "only comments"
+        raise ValueError(f"{path}:{len(lines) + 1}: expected the header {','.join(HEADER)} (got {got})")
     if not rows:
         raise ValueError(f"{path}:{len(lines) + 1}: expected at least one row after the header (got none)")
     return InputLog(path, tuple(rows), settings, settings_line)
@@ -403,7 +404,8 @@ def draw_overlay(frame: np.ndarray, lines: list[str], cursor=None) -> np.ndarray
     h, w = frame.shape[:2]
     font = cv2.FONT_HERSHEY_SIMPLEX
     scale = max(0.33, 0.5 * h / 720.0)
-    line_h = int(round(24 * scale / 0.5 * 0.75)) + 2
+    (_, text_h), base = cv2.getTextSize("Ag", font, scale, 1)
+    line_h = text_h + base + 4
     band = line_h * len(lines) + 6
     region = frame[h - band:, :]
     region[:] = (region.astype(np.uint16) * 90 >> 8).astype(np.uint8)
@@ -530,8 +532,6 @@ def run(args) -> int:
     if args.stats is not None:
         if Path(args.stats).suffix.lower() != ".json":
             raise ValueError(f"--stats: expected a .json file (got {args.stats!r})")
-        if args.record is not None and os.path.abspath(args.stats) == os.path.abspath(args.record):
-            raise ValueError(f"--stats: {args.stats} is also the --record output")
         check_writable(args.stats, args.force)
     if not display_available():
         raise ValueError(no_display_message(args.scene))
@@ -545,14 +545,14 @@ def run(args) -> int:
         if args.record is not None and session.log:
             write_inputs(args.record, session.log, scene_settings(scene), force=args.force)
     print(f"{scene.name} live: {result.frames} frames played ({result.shown} shown) in {result.wall_s:.1f} s, "
-          f"{result.mean_fps:.1f} fps while playing (median {result.median_fps:.1f}); hits {world.hits}, dodges {world.dodges}, "
-          f"shots {world.player_shots}")
+          f"{result.mean_fps:.1f} fps while playing (median {result.median_fps:.1f}); hits {world.hits}, "
+          f"dodges {world.dodges}, shots {world.player_shots}")
     if args.record is not None:
         print(f"  inputs      {args.record}" if result.frames else "  inputs      none recorded (no frame played)")
     if args.stats is not None:
         info = summary(world, scene, args.record or "(window)", result.wall_s, arch, result.frames)
-        info.update(live_fps=result.mean_fps, live_median_fps=result.median_fps, shown=result.shown, player_shots=world.player_shots,
-                    player_start=result.player_start, player_end=result.player_end)
+        info.update(live_fps=result.mean_fps, live_median_fps=result.median_fps, shown=result.shown,
+                    player_shots=world.player_shots, player_start=result.player_start, player_end=result.player_end)
         write_json(args.stats, info, force=args.force)
         print(f"  stats       {args.stats}")
     return 0
