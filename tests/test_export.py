@@ -64,7 +64,7 @@ def test_export_does_not_clobber(tiny, tmp_path):
 @pytest.mark.parametrize("argv,message", [
     (["-o", "pose.obj"], ".glb"),
     (["--frame", "-1"], "--frame"),
-    (["--bvh", "walk.bvh"], "--bvh"),
+    (["--bvh", "walk.txt"], "--bvh"),
 ])
 def test_bad_export_arguments_exit_2(tiny, tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)

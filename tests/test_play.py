@@ -141,10 +141,11 @@ def test_interrupt_keeps_a_shorter_video(tiny, tmp_path, monkeypatch):
     (["--stats", "s.txt"], ".json"),
     (["--live"], "--live"),
     (["--inputs", "i.csv"], "--inputs"),
-    (["--clip", "c.npz"], "--clip"),
+    (["--clip", "c.txt"], "--clip"),
 ])
 def test_bad_input_exits_2_with_one_line(tiny, tmp_path, monkeypatch, capsys, argv, message):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("DISPLAY", raising=False)  # --live must refuse, never open a window
     assert main(["play", str(tiny), *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
