@@ -9,7 +9,8 @@ The heavy part is five kernel launches per frame whatever the number of primitiv
 rasterise every capsule and sphere into an integer z-buffer (exact ray-capsule hits, `atomic_min`
 on (depth bits, id) keys, so frames are bit-identical across runs and thread counts), splat soft
 ground shadows into a half-resolution buffer, shade every pixel (sky gradient, ground grid,
-shadows, Lambert + ambient + rim capsules). Bullet trails (anti-aliased lines fading along their
+shadows, Lambert + ambient + rim capsules). The sky and the unshadowed ground are computed once
+per camera (a sixth launch when the camera changes). Bullet trails (anti-aliased lines fading along their
 length; drawn over the scene, without a depth test) and HUD text on a dark box are drawn
 afterwards with OpenCV.
 
@@ -219,6 +220,8 @@ class Renderer:
         self._color = ti.ndarray(ti.f32, shape=(p, 3))
         self._keys = ti.ndarray(ti.i64, shape=(h, w))
         self._shadow = ti.ndarray(ti.i32, shape=(h // 2, w // 2))
+        self._background = ti.ndarray(ti.f32, shape=(h, w, 3))  # ground and sky for _background_cam
+        self._background_cam = None
         # The colour buffer is a host array the shading kernel writes in place (zero-copy on the
         # CPU backend): an ndarray's to_numpy costs ~20 ns per uint8 element there (57 ms at 720p).
         self._frame = np.zeros((h, w, 3), np.uint8)
@@ -297,14 +300,19 @@ class Renderer:
     def _raster(self, n: int) -> np.ndarray:
         from crowd_ik.kernels import raster as kr
 
-        self._cam.from_numpy(self._camera.packed())
+        packed = self._camera.packed()
+        self._cam.from_numpy(packed)
+        if self._background_cam is None or not np.array_equal(packed, self._background_cam):
+            kr.shade_background(self._cam, self._background)
+            self._background_cam = packed
         if n:
             hosts = (self._host_a, self._host_b, self._host_r, self._host_c)
             kr.load_primitives(*hosts, n, self._pa, self._pb, self._radius, self._color)
         kr.clear_buffers(self._keys, self._shadow)
         kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys)
         kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow)
-        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._frame, self._depth)
+        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
+                       self._frame, self._depth)
         return self._frame.copy()
 
     def id_buffer(self) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,7 @@ def _cam(w=64, h=48, pos=(0.0, 2.0, 6.0), look=(0.0, 0.8, 0.0), fov=50.0):
 
 
 def _kernel_buffers(cam, a, b, r, colors=None):
-    """Run the four kernels on NumPy arrays: (keys, shadow, frame)."""
+    """Run the five kernels on NumPy arrays: (keys, shadow, frame, seen)."""
     h, w = cam.height, cam.width
     keys = np.zeros((h, w), np.int64)
     shadow = np.zeros((h // 2, w // 2), np.int32)
@@ -31,7 +31,9 @@ def _kernel_buffers(cam, a, b, r, colors=None):
     kr.clear_buffers(keys, shadow)
     kr.raster_capsules(packed, a, b, r, len(r), keys)
     kr.splat_shadows(packed, a, b, r, len(r), shadow)
-    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, frame, seen)
+    background = np.zeros((h, w, 3), np.float32)
+    kr.shade_background(packed, background)
+    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, background, frame, seen)
     return keys, shadow, frame, seen
 
 
@@ -200,6 +202,22 @@ def test_two_renders_are_bit_identical():
     np.testing.assert_array_equal(ids1, ids2)
     np.testing.assert_array_equal(d1.view(np.uint32), d2.view(np.uint32))
     assert len(np.unique(ids1)) > 200  # a crowded frame, with many overlaps resolved by the z-buffer
+
+
+def test_a_new_camera_gets_its_own_sky_and_ground():
+    g = np.random.default_rng(6)
+    a = g.uniform([-2, 0, -2], [2, 2, 2], (40, 3))
+    b = a + g.normal(0, 0.3, (40, 3))
+    r = g.uniform(0.05, 0.2, 40)
+    near, far = _cam(w=96, h=64), _cam(w=96, h=64, pos=(4.0, 1.0, 9.0), look=(0.0, 1.5, 0.0))
+    rend = Renderer(near, 40)
+    first = rend.render(a, b, r, (0.5, 0.5, 0.5))
+    rend.camera = far  # same image size: the cached background must follow the camera
+    moved = rend.render(a, b, r, (0.5, 0.5, 0.5))
+    np.testing.assert_array_equal(moved, Renderer(far, 40).render(a, b, r, (0.5, 0.5, 0.5)))
+    rend.camera = near
+    np.testing.assert_array_equal(rend.render(a, b, r, (0.5, 0.5, 0.5)), first)
+    assert not np.array_equal(first, moved)
 
 
 def _threads_scene():
