@@ -355,7 +355,8 @@ def raster_capsules(
                         z = ti.cast(t * rd.dot(fwd), ti.f32)
                         if z >= near:
                             key = (ti.cast(ti.bit_cast(z, ti.i32), ti.i64) << 32) | ti.cast(i, ti.i64)
-                            ti.atomic_min(keys[py, px], key)
+                            if key < keys[py, px]:  # keys only fall: a stale read costs an extra atomic
+                                ti.atomic_min(keys[py, px], key)
 
 
 @ti.func
@@ -429,7 +430,7 @@ def splat_shadows(
                             g = eye + d * (-eye[1] / d[1])
                             v = shadow_value(g[0], g[2], a, b, r)
                             level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
-                            if level > 0:
+                            if level > shadow[py, px]:  # levels only rise
                                 ti.atomic_max(shadow[py, px], level)
 
 
