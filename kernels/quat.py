@@ -178,8 +178,10 @@ def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), 
                 limited = True
         if limited:
             a = quat_to_euler_xyz(out)
-            out = euler_xyz_to_quat(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
-                                    ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))
+            c = vec3(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
+                     ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))
+            if c.x != a.x or c.y != a.y or c.z != a.z:  # rebuild only when a limit bites
+                out = euler_xyz_to_quat(c.x, c.y, c.z)
     return out
 
 

@@ -125,7 +125,9 @@ def constrain_rotation(kind: int, axes: np.ndarray, q: np.ndarray, lo: np.ndarra
         back = qmul(axis_angle(axis, np.maximum(ang - cone, 0.0)), out)
         out = np.where((ang > cone)[..., None], back, out)
     if np.any(lo > -1e29) or np.any(hi < 1e29):
-        out = euler_xyz_to_quat(np.clip(quat_to_euler_xyz(out), lo, hi))
+        a = quat_to_euler_xyz(out)
+        c = np.clip(a, lo, hi)
+        out = np.where(np.any(c != a, axis=-1, keepdims=True), euler_xyz_to_quat(c), out)
     return out
 
 
