@@ -157,11 +157,17 @@ def _bytes_estimate(rig_name: str) -> int:
 
 
 def cuda_available() -> bool:
-    """Whether Taichi's CUDA backend can start here (the same probe as crowd_ik.runtime)."""
+    """Whether Taichi's CUDA backend can start here (the same probe as crowd_ik.runtime).
+
+    The driver is asked first, through ctypes: without a GPU, Taichi is not even imported, so neither
+    its banner nor its "libcuda.so lib not found" warning gets in the way of the one-line refusal.
+    """
+    from crowd_ik.runtime import _cuda_available, _probe_cuda_device
+
+    if not _probe_cuda_device():
+        return False
     os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     import taichi as ti
-
-    from crowd_ik.runtime import _cuda_available
 
     return _cuda_available(ti)
 
@@ -369,39 +375,58 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     cold_s, cold = _solve_timed(crowd, wl, "fabrik")
     cold_out = _outcome(cold.error, cold.iterations, cold.status == Status.CONVERGED, cold.status != Status.UNREACHABLE)
 
-    parent = rig.arrays["parent"][1:]
-    radii = np.ascontiguousarray(np.tile(rig.arrays["radius"][1:], n), np.float32)
-    owner = np.ascontiguousarray(np.repeat(np.arange(n, dtype=np.int32), J - 1))
+    import taichi as ti
+
+    from crowd_ik.kernels import game_kernels as gk
+
+    B = J - 1  # bones: bone k joins joint parent[k + 1] to joint k + 1
+
+    def ndarray(value: np.ndarray, dtype):
+        arr = ti.ndarray(dtype, shape=value.shape[:1] if dtype == ti.math.vec3 else value.shape)
+        arr.from_numpy(np.ascontiguousarray(value))
+        return arr
+
+    # as crowd_ik.game.World does it: capsules, host joints and per-character boxes in one launch, the
+    # capsules left in ndarrays for the pool, which skips characters no bullet can reach
+    bone_parent = ndarray(rig.arrays["parent"][1:].astype(np.int32), ti.i32)
+    bone_radius = ndarray(rig.arrays["radius"][1:].astype(np.float32), ti.f32)
+    radii = ndarray(np.tile(rig.arrays["radius"][1:], n).astype(np.float32), ti.f32)
+    owner = ndarray(np.repeat(np.arange(n, dtype=np.int32), B), ti.i32)
+    caps = [tuple(ndarray(np.zeros((n * B, 3), np.float32), ti.math.vec3) for _ in range(2)) for _ in range(2)]
+    box = ndarray(np.zeros((n, 4), np.float32), ti.f32)
+    joints = [np.zeros((n, J, 3), np.float32) for _ in range(2)]
     alive = np.ones(n, np.int32)
     lo, hi = wl.roots.min(0) - 3.0, wl.roots.max(0) + 3.0
     pool = BulletPool(pool_size, radius=0.03, bounds=(lo[0], lo[2], hi[0], hi[2]), cell_size=1.0,
-                      capsule_capacity=n * (J - 1))
+                      capsule_capacity=n * B)
     rng = np.random.default_rng(SEED + 1)
     origins = np.stack([rng.uniform(lo[0], hi[0], pool_size), rng.uniform(0.3, 1.8, pool_size),
                         rng.uniform(lo[2], hi[2], pool_size)], axis=1).astype(np.float32)
     heading = rng.uniform(0, 2 * np.pi, pool_size)
     velocities = (25.0 * np.stack([np.cos(heading), np.zeros(pool_size), np.sin(heading)], axis=1)).astype(np.float32)
 
-    def capsules():
-        pos = crowd.world_pos.to_numpy()
-        return (np.ascontiguousarray(pos[:, parent].reshape(-1, 3)), np.ascontiguousarray(pos[:, 1:].reshape(-1, 3)))
+    def capsules(now: int) -> None:
+        gk.limb_capsules(crowd.world_pos, bone_parent, bone_radius, *caps[1 - now], *caps[now], joints[now], box)
 
     offsets = _smooth_offsets(n, E, SEED + 2)
-    prev_a, prev_b = capsules()
+    capsules(0)
+    capsules(1)  # both capsule sets hold the cold pose
+    now = 1
     solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, motion, hits = [], [], [], [], [], [], [], [], [], 0
     for f in range(GAME_WARMUP_FRAMES + frames):
         targets = wl.targets + offsets((f + 1) / 60.0)
+        now = 1 - now
         t0 = time.perf_counter()
         rep = crowd.solve(targets, method="fabrik", max_iterations=4, tolerance=wl.tolerance)
         t1 = time.perf_counter()
-        a, b = capsules()
+        capsules(now)
         t2 = time.perf_counter()
         pool.spawn(origins, velocities)
-        step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, a, b, radii, owner, alive, n, prev_a, prev_b)
+        step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, *caps[now], radii, owner, alive, n,
+                                 prev_a=caps[1 - now][0], prev_b=caps[1 - now][1], owner_boxes=box)
         t3 = time.perf_counter()
-        # how far the limbs moved this frame: the median over characters of their largest joint step, metres
-        step = np.linalg.norm(b - prev_b, axis=1).reshape(n, J - 1).max(axis=1)
-        prev_a, prev_b = a, b
+        # how far the limbs moved this frame: per character its largest joint step, metres
+        step = np.linalg.norm(joints[now] - joints[1 - now], axis=2).max(axis=1)
         if f < GAME_WARMUP_FRAMES:
             continue
         motion.append((float(np.median(step)), float(step.max())))
@@ -417,7 +442,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     frame_ms = np.asarray(solve_ms) + np.asarray(caps_ms) + np.asarray(bullet_ms)
     frame = _ms_stats(frame_ms)
     return dict(
-        n=n, frames=frames, warmup_frames=GAME_WARMUP_FRAMES, pool_size=pool_size, capsules=n * (J - 1),
+        n=n, frames=frames, warmup_frames=GAME_WARMUP_FRAMES, pool_size=pool_size, capsules=n * B,
         cold=dict(ms=1e3 * cold_s, max_iterations=MAX_ITERATIONS, **cold_out),
         warm=dict(max_iterations=4, solve_ms=_ms_stats(solve_ms), mean_iterations=float(np.mean(iters)),
                   success_rate=float(np.mean(conv)), mean_error=float(np.mean(err))),
