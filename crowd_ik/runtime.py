@@ -19,7 +19,8 @@ def _cuda_available(ti) -> bool:
     try:
         from taichi._lib import core as _ti_core
 
-        return bool(_ti_core.with_cuda()) and _probe_cuda_device()
+        # the driver probe first: without libcuda, Taichi's own check prints a warning to stderr
+        return _probe_cuda_device() and bool(_ti_core.with_cuda())
     except Exception:  # noqa: BLE001 - any failure here means no usable CUDA
         return False
 
