@@ -204,6 +204,8 @@ class Renderer:
         ensure_init()
         import taichi as ti
 
+        from crowd_ik.kernels import raster as kr
+
         self._camera = camera
         self.max_capsules = int(max_capsules)
         self.max_spheres = int(max_spheres)
@@ -222,6 +224,10 @@ class Renderer:
         self._shadow = ti.ndarray(ti.i32, shape=(h // 2, w // 2))
         self._background = ti.ndarray(ti.f32, shape=(h, w, 3))  # ground and sky for _background_cam
         self._background_cam = None
+        # Dirty tiles (kernels/raster.py TILE): bit 0 drawn this frame, bit 1 drawn last frame; the
+        # rest of the frame buffer keeps the background. All ones: clear and shade everything.
+        self._tiles = ti.ndarray(ti.i32, shape=((h + kr.TILE - 1) // kr.TILE, (w + kr.TILE - 1) // kr.TILE))
+        self._tiles.fill(1)
         # The colour buffer is a host array the shading kernel writes in place (zero-copy on the
         # CPU backend): an ndarray's to_numpy costs ~20 ns per uint8 element there (57 ms at 720p).
         self._frame = np.zeros((h, w, 3), np.uint8)
@@ -305,14 +311,15 @@ class Renderer:
         if self._background_cam is None or not np.array_equal(packed, self._background_cam):
             kr.shade_background(self._cam, self._background)
             self._background_cam = packed
+            self._tiles.fill(1)  # every pixel's background changed
         if n:
             hosts = (self._host_a, self._host_b, self._host_r, self._host_c)
             kr.load_primitives(*hosts, n, self._pa, self._pb, self._radius, self._color)
-        kr.clear_buffers(self._keys, self._shadow)
-        kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys)
-        kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow)
+        kr.clear_buffers(self._keys, self._shadow, self._tiles)
+        kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys, self._tiles)
+        kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow, self._tiles)
         kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
-                       self._frame, self._depth)
+                       self._tiles, self._frame, self._depth)
         return self._frame.copy()
 
     def id_buffer(self) -> tuple[np.ndarray, np.ndarray]:

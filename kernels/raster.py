@@ -75,6 +75,7 @@ SHADOW_MAX_HEIGHT = 12.0  # primitives wholly above this cast no shadow
 SHADOW_SCALE = 65535  # shadow buffer units per unit darkness
 MIN_PIXEL_RADIUS = 0.72  # pixels; > sqrt(2)/2 so every primitive in view covers a pixel centre
 EMPTY_ID = 0x7FFFFFFF  # id field of an empty key
+TILE = 16  # pixels: the side of the square tiles whose dirty flags let frames skip untouched ground
 BIG = 1.0e30
 _CORNER_X = (0.0, 1.0, 1.0, 0.0)  # the footprint rectangle's corners in order around it
 _CORNER_Z = (0.0, 0.0, 1.0, 1.0)
@@ -271,19 +272,42 @@ def fog(col, dist):
     return col + (horizon - col) * f
 
 
-@ti.kernel
-def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.i32, ndim=2)):
-    """keys := empty (no hit, infinite depth); shadow (H/2, W/2) := 0.
+@ti.func
+def mark_tiles(tiles: ti.template(), y0, y1, x0, x1):
+    """Flag (bit 0) the tiles holding pixel rows y0..y1 and columns x0..x1 (inclusive, on screen).
+    Writers only ever set that bit, so the unsynchronised read-modify-write gives the same flags
+    whatever the thread order."""
+    for ty in range(y0 // TILE, y1 // TILE + 1):
+        for tx in range(x0 // TILE, x1 // TILE + 1):
+            tiles[ty, tx] = tiles[ty, tx] | 1
 
+
+@ti.kernel
+def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.i32, ndim=2),
+                  tiles: ndarray(dtype=ti.i32, ndim=2)):
+    """Start a frame: in every tile the last frame flagged (tiles bit 0), keys := empty (no hit,
+    infinite depth) and the shadow texels (H/2, W/2) whose pixels (2i, 2j) lie in it := 0; then
+    each tile's bit 1 <- bit 0 (drawn last frame: shade_frame repaints it) and bit 0 <- 0.
+
+    tiles ((H + TILE - 1) // TILE, (W + TILE - 1) // TILE) int32; all ones clears everything.
     Image loops here run in parallel over rows with a serial loop along each row: on the CPU
     backend that is several times faster than a ti.ndrange over pixels (whose flat index is
     divided back into (row, column) for every pixel)."""
-    for py in range(keys.shape[0]):
-        for px in range(keys.shape[1]):
-            keys[py, px] = empty_key()
-    for py in range(shadow.shape[0]):
-        for px in range(shadow.shape[1]):
-            shadow[py, px] = 0
+    height = keys.shape[0]
+    width = keys.shape[1]
+    for ty in range(tiles.shape[0]):
+        for tx in range(tiles.shape[1]):
+            flags = tiles[ty, tx]
+            if flags & 1:
+                y0 = ty * TILE
+                x0 = tx * TILE
+                for py in range(y0, ti.min(y0 + TILE, height)):
+                    for px in range(x0, ti.min(x0 + TILE, width)):
+                        keys[py, px] = empty_key()
+                for i in range(y0 // 2, ti.min((y0 + TILE) // 2, shadow.shape[0])):
+                    for j in range(x0 // 2, ti.min((x0 + TILE) // 2, shadow.shape[1])):
+                        shadow[i, j] = 0
+            tiles[ty, tx] = (flags & 1) << 1
 
 
 @ti.kernel
@@ -316,9 +340,11 @@ def raster_capsules(
     radius: ndarray(dtype=ti.f32, ndim=1),
     n: ti.i32,
     keys: ndarray(dtype=ti.i64, ndim=2),
+    tiles: ndarray(dtype=ti.i32, ndim=2),
 ):
     """Lower keys[py, px] to (depth bits << 32 | i) for every primitive i < n whose capsule the
-    pixel's ray enters at view depth >= near. keys must be cleared first."""
+    pixel's ray enters at view depth >= near. keys must be cleared first. Every tile of a
+    primitive's screen box is flagged in tiles (bit 0)."""
     height = keys.shape[0]
     width = keys.shape[1]
     for i in range(n):
@@ -346,6 +372,8 @@ def raster_capsules(
                 xr = pixel_range(cx + focal * ti.min(bxa[0], bxb[0]), cx + focal * ti.max(bxa[1], bxb[1]), width)
                 yr = pixel_range(cy - focal * ti.max(bya[1], byb[1]), cy - focal * ti.min(bya[0], byb[0]), height)
             # else: the capsule crosses the near plane; test every pixel of the screen.
+            if xr[0] <= xr[1] and yr[0] <= yr[1]:
+                mark_tiles(tiles, yr[0], yr[1], xr[0], xr[1])
             d0 = dir_origin(cam)
             for py in range(yr[0], yr[1] + 1):
                 for px in range(xr[0], xr[1] + 1):
@@ -374,10 +402,12 @@ def splat_shadows(
     radius: ndarray(dtype=ti.f32, ndim=1),
     n: ti.i32,
     shadow: ndarray(dtype=ti.i32, ndim=2),
+    tiles: ndarray(dtype=ti.i32, ndim=2),
 ):
     """Raise shadow[i, j] (H/2, W/2) to round(SHADOW_SCALE * shadow_value) of every primitive
     k < n at the ground point seen through pixel coordinates (2j + 0.5, 2i + 0.5). shadow must be
-    cleared first."""
+    cleared first. Every tile with a pixel that samples a texel of a primitive's texel box is
+    flagged in tiles (bit 0): texel i is sampled by pixel rows 2i - 1 .. 2i + 2 (shadow_row)."""
     height = shadow.shape[0]
     width = shadow.shape[1]
     for i in range(n):
@@ -422,6 +452,9 @@ def splat_shadows(
             if s_lo[0] <= s_hi[0]:
                 xr = pixel_range((s_lo[0] - 0.5) * 0.5, (s_hi[0] - 0.5) * 0.5, width)
                 yr = pixel_range((s_lo[1] - 0.5) * 0.5, (s_hi[1] - 0.5) * 0.5, height)
+                if xr[0] <= xr[1] and yr[0] <= yr[1]:
+                    mark_tiles(tiles, ti.max(2 * yr[0] - 1, 0), ti.min(2 * yr[1] + 2, 2 * height - 1),
+                               ti.max(2 * xr[0] - 1, 0), ti.min(2 * xr[1] + 2, 2 * width - 1))
                 d0 = dir_origin(cam)
                 for py in range(yr[0], yr[1] + 1):
                     for px in range(xr[0], xr[1] + 1):
@@ -536,6 +569,39 @@ def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dty
                 background[py, px, 2] = 0.0
 
 
+@ti.func
+def shade_pixel(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
+                shadow: ti.template(), background: ti.template(), frame: ti.template(), depth: ti.template(), i0, i1,
+                fv, px, py):
+    """Shade pixel (px, py) into frame and depth (see shade_frame)."""
+    ground_z = background[py, px, 0]
+    col = ti.Vector([0.0, 0.0, 0.0])
+    seen = ground_z
+    key = keys[py, px]
+    pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
+    z = ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
+    if pid != EMPTY_ID and z < ground_z:
+        eye = cam_vec(cam, 0)
+        rd = pixel_ray(cam, px, py)
+        t = z / rd.dot(cam_vec(cam, 9))
+        a = row3(pa, pid) - eye
+        b = row3(pb, pid) - eye
+        nrm = capsule_normal(rd * t, a, b)
+        col = fog(shade_capsule(row3(color, pid), nrm, rd, eye[1] + rd[1] * t), t)
+        seen = z
+    elif ground_z < ti.math.inf:
+        dark = shadow_at(shadow, i0, i1, fv, px)
+        col = (ti.Vector([GROUND[0], GROUND[1], GROUND[2]]) * (background[py, px, 1] * (1.0 - dark))
+               + ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]]) * background[py, px, 2])
+    else:
+        horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
+        zenith = ti.Vector([SKY_ZENITH[0], SKY_ZENITH[1], SKY_ZENITH[2]])
+        col = horizon + (zenith - horizon) * background[py, px, 1]
+    for c in ti.static(range(3)):
+        frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
+    depth[py, px] = seen
+
+
 @ti.kernel
 def shade_frame(
     cam: ndarray(dtype=ti.f32, ndim=1),
@@ -545,38 +611,22 @@ def shade_frame(
     keys: ndarray(dtype=ti.i64, ndim=2),
     shadow: ndarray(dtype=ti.i32, ndim=2),
     background: ndarray(dtype=ti.f32, ndim=3),
+    tiles: ndarray(dtype=ti.i32, ndim=2),
     frame: ndarray(dtype=ti.u8, ndim=3),
     depth: ndarray(dtype=ti.f32, ndim=2),
 ):
     """frame (H, W, 3) uint8 BGR from the z-buffer keys, the shadow buffer and the camera's
     background (shade_background); depth (H, W) float32: view depth of what each pixel shows (a
-    primitive or the ground), inf for sky. A primitive hidden by the ground is not drawn."""
+    primitive or the ground), inf for sky. A primitive hidden by the ground is not drawn.
+
+    Only the tiles flagged in tiles (drawn on this frame or the last) are shaded: every other
+    pixel has no primitive and no shadow, and still holds the background from an earlier frame.
+    """
+    width = keys.shape[1]
     for py in range(keys.shape[0]):
         i0, i1, fv = shadow_row(shadow, py)
-        for px in range(keys.shape[1]):
-            ground_z = background[py, px, 0]
-            col = ti.Vector([0.0, 0.0, 0.0])
-            seen = ground_z
-            key = keys[py, px]
-            pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
-            z = ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
-            if pid != EMPTY_ID and z < ground_z:
-                eye = cam_vec(cam, 0)
-                rd = pixel_ray(cam, px, py)
-                t = z / rd.dot(cam_vec(cam, 9))
-                a = row3(pa, pid) - eye
-                b = row3(pb, pid) - eye
-                nrm = capsule_normal(rd * t, a, b)
-                col = fog(shade_capsule(row3(color, pid), nrm, rd, eye[1] + rd[1] * t), t)
-                seen = z
-            elif ground_z < ti.math.inf:
-                dark = shadow_at(shadow, i0, i1, fv, px)
-                col = (ti.Vector([GROUND[0], GROUND[1], GROUND[2]]) * (background[py, px, 1] * (1.0 - dark))
-                       + ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]]) * background[py, px, 2])
-            else:
-                horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
-                zenith = ti.Vector([SKY_ZENITH[0], SKY_ZENITH[1], SKY_ZENITH[2]])
-                col = horizon + (zenith - horizon) * background[py, px, 1]
-            for c in ti.static(range(3)):
-                frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
-            depth[py, px] = seen
+        ty = py // TILE
+        for tx in range(tiles.shape[1]):
+            if tiles[ty, tx] != 0:
+                for px in range(tx * TILE, ti.min(tx * TILE + TILE, width)):
+                    shade_pixel(cam, pa, pb, color, keys, shadow, background, frame, depth, i0, i1, fv, px, py)

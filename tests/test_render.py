@@ -28,12 +28,14 @@ def _kernel_buffers(cam, a, b, r, colors=None):
     a, b, r = (np.ascontiguousarray(x, np.float32) for x in (a, b, r))
     if colors is None:
         colors = np.full((len(r), 3), 0.7, np.float32)
-    kr.clear_buffers(keys, shadow)
-    kr.raster_capsules(packed, a, b, r, len(r), keys)
-    kr.splat_shadows(packed, a, b, r, len(r), shadow)
+    tiles = np.ones(((h + kr.TILE - 1) // kr.TILE, (w + kr.TILE - 1) // kr.TILE), np.int32)  # all dirty
+    kr.clear_buffers(keys, shadow, tiles)
+    kr.raster_capsules(packed, a, b, r, len(r), keys, tiles)
+    kr.splat_shadows(packed, a, b, r, len(r), shadow, tiles)
     background = np.zeros((h, w, 3), np.float32)
     kr.shade_background(packed, background)
-    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, background, frame, seen)
+    kr.shade_frame(packed, a, b, np.ascontiguousarray(colors, np.float32), keys, shadow, background, tiles, frame,
+                   seen)
     return keys, shadow, frame, seen
 
 
@@ -218,6 +220,47 @@ def test_a_new_camera_gets_its_own_sky_and_ground():
     rend.camera = near
     np.testing.assert_array_equal(rend.render(a, b, r, (0.5, 0.5, 0.5)), first)
     assert not np.array_equal(first, moved)
+
+
+def test_frames_drawn_over_earlier_ones_equal_fresh_renders():
+    # the renderer repaints only the tiles drawn on this frame or the last; a sequence of frames
+    # with limbs and shadows moving away (and one frame crossing the near plane) must equal fresh renders
+    cam = _cam(w=160, h=96, pos=(0.0, 3.0, 7.0), look=(0.0, 0.5, 0.0))
+    g = np.random.default_rng(8)
+    a0 = g.uniform([-3, 0, -3], [3, 2, 3], (60, 3))
+    b0 = a0 + g.normal(0, 0.3, (60, 3))
+    r = g.uniform(0.03, 0.2, 60)
+    c = g.uniform(0, 1, (60, 3))
+    rend = Renderer(cam, 61, 0)
+    for k, shift in enumerate([0.0, 0.4, 3.0, -2.5, 6.0, 0.0]):
+        a, b = a0 + [shift, 0.0, 0.0], b0 + [shift, 0.0, 0.0]
+        if k == 3:  # a capsule through the near plane: every tile
+            a, b = np.vstack([a, [0.0, 3.0, 6.99]]), np.vstack([b, [0.0, 3.0, 4.0]])
+            rr, cc = np.append(r, 0.2), np.vstack([c, c[:1]])
+        else:
+            rr, cc = r, c
+        got = rend.render(a, b, rr, cc)
+        fresh = Renderer(cam, 61, 0)
+        np.testing.assert_array_equal(got, fresh.render(a, b, rr, cc))
+        np.testing.assert_array_equal(rend.id_buffer()[0], fresh.id_buffer()[0])
+        np.testing.assert_array_equal(rend.depth_buffer(), fresh.depth_buffer())
+        np.testing.assert_array_equal(rend.shadow_buffer(), fresh.shadow_buffer())
+
+
+def test_only_drawn_tiles_are_flagged():
+    cam = _cam(w=160, h=96)
+    rend = Renderer(cam, 1, 0)
+    rend.render([[0.0, 1.0, 0.0]], [[0.0, 1.2, 0.0]], [0.05], (0.5, 0.5, 0.5))
+    tiles = rend._tiles.to_numpy()
+    drawn = (tiles & 1) != 0
+    assert 0 < drawn.sum() < drawn.size // 4  # one small capsule and its shadow
+    ids, _ = rend.id_buffer()
+    ys, xs = np.nonzero(ids >= 0)
+    assert drawn[ys // kr.TILE, xs // kr.TILE].all()
+    # every pixel whose bilinear shadow sample is non-zero (it reads texels up to a row and a column
+    # beyond its own 2x2 block) lies in a flagged tile
+    sy, sx = np.nonzero(ref.sample_shadow(rend._shadow.to_numpy(), cam.width, cam.height) > 0)
+    assert len(sy) > 50 and drawn[sy // kr.TILE, sx // kr.TILE].all()
 
 
 def _threads_scene():
