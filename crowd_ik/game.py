@@ -516,6 +516,18 @@ class World:
         self._tracked_serial = np.full(N, -1, np.int64)
         self._char_orient = np.ascontiguousarray(np.broadcast_to(b.orient, (N, E, 3)), np.float32)
         self._char_weights = np.ascontiguousarray(np.broadcast_to(b.weights, (N, E)), np.float32)
+        # dodge_targets' per-rig arguments (placeholders where a chain has no hips or hands) and outputs
+        slot = np.full(E, -1, np.int32)
+        slot[b.planted] = np.arange(int(b.planted.sum()), dtype=np.int32)
+        self._dodge_consts = (
+            b.lean.astype(np.float32), b.duck.astype(np.float32), slot,
+            (b.hands if len(b.hands) else np.full(1, -1)).astype(np.int32),
+            (b.hip_offset if b.humanoid else np.zeros((1, 3))).astype(np.float32),
+            int(b.humanoid), b.pelvis_share, MAX_PELVIS_SHIFT, LEG_SLACK * b.leg_length if b.humanoid else 1.0, b.scale,
+        )
+        self._planted_arg = self.planted if b.humanoid else np.zeros((N, 1, 3), np.float32)
+        self._targets_buf = np.zeros((N, E, 3), np.float32)
+        self._roots_buf = np.zeros((N, 3), np.float32)
         # limbs for the bullet pool, kept in Taichi ndarrays: capsule n * B + k is character n's bone k
         self._owner = _ndarray(np.repeat(np.arange(N, dtype=np.int32), B))
         self._cap_radius = _ndarray(np.tile(b.bone_radius, N))
@@ -867,33 +879,16 @@ class World:
         self.guard = _lowpass(self.guard, guard_goal, mag_now, mag_goal)
 
     def _solve_characters(self) -> None:
-        b = self.body
         if not self.alive.any():
             return
-        scale = b.scale
-        down = np.zeros((self.n, 3), np.float32)
-        down[:, 1] = -self.duck
-        targets = (self.rest_targets + b.lean[None, :, None] * self.lean[:, None, :]
-                   + b.duck[None, :, None] * down[:, None, :])
-        roots = self.roots.copy()
-        if b.humanoid:
-            shift = self.lean * b.pelvis_share
-            norm = np.linalg.norm(shift, axis=1, keepdims=True)
-            shift *= np.minimum(1.0, MAX_PELVIS_SHIFT * scale / np.maximum(norm, 1e-9))
-            roots += shift
-            roots[:, 1] -= 0.85 * self.duck
-            wanted_y = roots[:, 1].copy()
-            roots[:, 1] = np.minimum(wanted_y, _max_root_y(b, roots, self.yaw, self.planted))
-            targets[:, ~b.planted, 1] += (roots[:, 1] - wanted_y)[:, None]  # the upper body follows a forced drop
-            # guard: hands come up in front of the chest, following the lean and the duck
-            fwd = np.stack([np.sin(self.yaw), np.zeros(self.n), np.cos(self.yaw)], axis=1).astype(np.float32)
-            left = np.stack([np.cos(self.yaw), np.zeros(self.n), -np.sin(self.yaw)], axis=1).astype(np.float32)
-            chest = self.ref_points + self.lean * 0.8 + down
-            for e, side in zip(b.hands, (1.0, -1.0)):
-                guard = chest + fwd * 0.28 * scale + left * (0.1 * side * scale) + UP * 0.14 * scale
-                g = self.guard[:, None]
-                targets[:, e] = targets[:, e] * (1.0 - g) + guard * g
-            targets[:, b.planted] = self.planted
+        # the dodge -> root and IK targets (lean, duck with planted feet, hand guard): one kernel
+        from crowd_ik.kernels import game_kernels as gk
+
+        f32 = np.float32
+        targets, roots = self._targets_buf, self._roots_buf
+        gk.dodge_targets(self.rest_targets, np.ascontiguousarray(self.lean, f32), np.ascontiguousarray(self.duck, f32),
+                         np.ascontiguousarray(self.guard, f32), self.roots, self.yaw, self._planted_arg,
+                         self.ref_points, *self._dodge_consts, targets, roots)
         weights = self._char_weights * self.alive[:, None]
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)

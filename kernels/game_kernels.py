@@ -59,3 +59,86 @@ def limb_capsules(
         box[n, 1] = lo[1]
         box[n, 2] = hi[0]
         box[n, 3] = hi[1]
+
+
+@ti.kernel
+def dodge_targets(
+    rest_targets: ndarray(dtype=vec3, ndim=2),
+    lean: ndarray(dtype=vec3, ndim=1),
+    duck: ndarray(ndim=1),
+    guard: ndarray(ndim=1),
+    roots: ndarray(dtype=vec3, ndim=1),
+    yaw: ndarray(ndim=1),
+    planted: ndarray(dtype=vec3, ndim=2),
+    chest: ndarray(dtype=vec3, ndim=1),
+    lean_gain: ndarray(ndim=1),
+    duck_gain: ndarray(ndim=1),
+    planted_slot: ndarray(dtype=ti.i32, ndim=1),
+    hands: ndarray(dtype=ti.i32, ndim=1),
+    hip_offset: ndarray(dtype=vec3, ndim=1),
+    humanoid: ti.i32,
+    pelvis_share: ti.f32,
+    max_shift: ti.f32,
+    leg_reach: ti.f32,
+    scale: ti.f32,
+    targets: ndarray(dtype=vec3, ndim=2),
+    roots_out: ndarray(dtype=vec3, ndim=1),
+):
+    """The IK targets (N, E, 3) and roots (N, 3) of characters holding a dodge (World._solve_characters).
+
+    Per character n: its stance targets rest_targets[n] (E, 3) follow the low-passed lean (N, 3)
+    by lean_gain (E,) and the duck (N,) downward by duck_gain (E,). A humanoid (humanoid != 0)
+    also moves its root (roots (N, 3) standing, yaw (N,)) by pelvis_share of the lean, at most
+    max_shift metres, and down by 0.85 duck, but never higher than both hips (hip_offset (2, 3)
+    from the root at yaw 0) can stand over the planted feet (N, 2, 3) with legs of leg_reach
+    metres; when the root is held down the non-planted targets drop with it. Its hands (the two
+    effectors in hands, right side first) blend by guard (N,) toward a guard in front of the
+    chest (N, 3) moved by 0.8 lean and the duck, and effectors with planted_slot[e] = k >= 0 are
+    held at planted[n, k]. Otherwise roots_out = roots.
+    """
+    for n in range(rest_targets.shape[0]):
+        ln = lean[n]
+        d = duck[n]
+        root = roots[n]
+        drop = 0.0
+        if humanoid != 0:
+            shift = ln * pelvis_share
+            norm = shift.norm()
+            shift = shift * ti.min(1.0, max_shift * scale / ti.max(norm, 1e-9))
+            root = root + shift
+            root[1] -= 0.85 * d
+            wanted = root[1]
+            c = ti.cos(yaw[n])
+            s = ti.sin(yaw[n])
+            highest = ti.math.inf
+            for h in range(hip_offset.shape[0]):
+                off = hip_offset[h]
+                foot = planted[n, h]
+                dx = root[0] + c * off[0] + s * off[2] - foot[0]
+                dz = root[2] - s * off[0] + c * off[2] - foot[2]
+                up = ti.sqrt(ti.max(leg_reach * leg_reach - (dx * dx + dz * dz), (0.2 * leg_reach) ** 2))
+                highest = ti.min(highest, foot[1] + up - off[1])
+            root[1] = ti.min(wanted, highest)
+            drop = root[1] - wanted
+        for e in range(rest_targets.shape[1]):
+            t = rest_targets[n, e] + ln * lean_gain[e]
+            t[1] -= d * duck_gain[e]
+            if humanoid != 0 and planted_slot[e] < 0:
+                t[1] += drop
+            targets[n, e] = t
+        if humanoid != 0:
+            c = ti.cos(yaw[n])
+            s = ti.sin(yaw[n])
+            fwd = vec3(s, 0.0, c)
+            left = vec3(c, 0.0, -s)
+            front = chest[n] + ln * 0.8 - vec3(0.0, d, 0.0)
+            g = guard[n]
+            for k in range(hands.shape[0]):
+                side = 1.0 - 2.0 * ti.cast(k, ti.f32)
+                at = front + fwd * (0.28 * scale) + left * (0.1 * side * scale) + vec3(0.0, 0.14 * scale, 0.0)
+                e = hands[k]
+                targets[n, e] = targets[n, e] * (1.0 - g) + at * g
+            for e in range(rest_targets.shape[1]):
+                if planted_slot[e] >= 0:
+                    targets[n, e] = planted[n, planted_slot[e]]
+        roots_out[n] = root

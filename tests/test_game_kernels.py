@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from crowd_ik.game import World
+from crowd_ik import game
+from crowd_ik.game import Body, World
 from crowd_ik.kernels import game_kernels as gk
 from crowd_ik.reference import game_kernels as ref
 from crowd_ik.rig import Rig
@@ -44,3 +45,65 @@ def test_world_keeps_host_joints_and_capsules_in_step():
                                              *(c.to_numpy() for c in world._caps[1 - world._caps_now]))
     np.testing.assert_array_equal(a.to_numpy(), want_a)
     np.testing.assert_array_equal(b.to_numpy(), want_b)
+
+
+def _dodge_inputs(body, n, seed):
+    """Random dodge states for n characters of `body` standing on a jittered grid."""
+    rng = np.random.default_rng(seed)
+    ground = np.zeros((n, 3), np.float32)
+    ground[:, [0, 2]] = rng.uniform(-5, 5, (n, 2))
+    yaw = rng.uniform(-np.pi, np.pi, n).astype(np.float32)
+    rest = body.rest_targets(ground, yaw).astype(np.float32)
+    planted = np.ascontiguousarray(rest[:, body.planted] + rng.normal(0, 0.05, (n, int(body.planted.sum()), 3)),
+                                   np.float32)
+    lean = rng.normal(0, 0.2, (n, 3)).astype(np.float32)
+    duck = rng.uniform(0, 0.3, n).astype(np.float32)
+    guard = rng.uniform(0, 1, n).astype(np.float32)
+    guard[::3] = 0.0
+    roots = (ground + [0.0, body.rest_root_y, 0.0]).astype(np.float32)
+    chest = np.ascontiguousarray(body.point(body.chest, ground, yaw), np.float32)
+    return rest, lean, duck, guard, roots, yaw, planted, chest
+
+
+def test_dodge_targets_match_twin_and_keep_feet_planted():
+    body = Body(Rig.humanoid())
+    n, E = 50, body.rig.n_effectors
+    rest, lean, duck, guard, roots, yaw, planted, chest = _dodge_inputs(body, n, 1)
+    lean[:5] *= 10.0  # leans beyond the pelvis limit
+    duck[5:10] = 0.6  # deep ducks
+    slot = np.full(E, -1, np.int32)
+    slot[body.planted] = np.arange(int(body.planted.sum()), dtype=np.int32)
+    consts = (body.lean, body.duck, slot, body.hands.astype(np.int32), body.hip_offset.astype(np.float32), 1,
+              body.pelvis_share, game.MAX_PELVIS_SHIFT, game.LEG_SLACK * body.leg_length, body.scale)
+    targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
+    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts, targets, out_roots)
+    want_t, want_r = ref.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts)
+    np.testing.assert_allclose(targets, want_t, atol=2e-5)
+    np.testing.assert_allclose(out_roots, want_r, atol=2e-5)
+    np.testing.assert_array_equal(targets[:, body.planted], planted)
+    # the pelvis follows the lean by pelvis_share, at most MAX_PELVIS_SHIFT
+    shift = lean * body.pelvis_share
+    limit = np.minimum(1.0, game.MAX_PELVIS_SHIFT / np.linalg.norm(shift, axis=1))
+    np.testing.assert_allclose((out_roots - roots)[:, [0, 2]], (shift * limit[:, None])[:, [0, 2]], atol=1e-5)
+    assert np.all(limit[:5] < 1.0)
+    # ... and never stands higher than the legs reach (as the Walker's _max_root_y): long leans are held there
+    highest = game._max_root_y(body, out_roots, yaw, planted)
+    assert np.all(out_roots[:, 1] <= highest + 1e-5)
+    wanted = roots[:, 1] + (shift * limit[:, None])[:, 1] - 0.85 * duck
+    held = out_roots[:, 1] < wanted - 1e-4
+    assert held.any() and np.allclose(out_roots[held, 1], highest[held], atol=1e-5)
+
+
+def test_dodge_targets_of_a_chain_follow_lean_and_duck_only():
+    body = Body(Rig.chain(8, bone_length=0.2, dim=3))
+    n, E = 20, body.rig.n_effectors
+    rest, lean, duck, guard, roots, yaw, _, chest = _dodge_inputs(body, n, 2)
+    consts = (body.lean, body.duck, np.full(E, -1, np.int32), np.full(1, -1, np.int32), np.zeros((1, 3), np.float32),
+              0, 0.0, game.MAX_PELVIS_SHIFT, 1.0, 1.0)
+    placeholder = np.zeros((n, 1, 3), np.float32)
+    targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
+    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts, targets, out_roots)
+    want_t, want_r = ref.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts)
+    np.testing.assert_allclose(targets, want_t, atol=2e-5)
+    np.testing.assert_array_equal(out_roots, roots)
+    np.testing.assert_allclose(targets[:, :, 1], rest[:, :, 1] + lean[:, None, 1] - duck[:, None], atol=2e-5)
