@@ -535,6 +535,7 @@ class World:
         self._bone_radius = _ndarray(b.bone_radius)
         self._caps = [(_ndarray(np.zeros((N * B, 3), np.float32)), _ndarray(np.zeros((N * B, 3), np.float32)))
                       for _ in range(2)]  # this step's and the previous step's capsule ends, alternating
+        self._pose_box = [_ndarray(np.zeros((N, 4), np.float32)) for _ in range(2)]  # (x, z) box of each set
         self._caps_now = 0
         self._owner_box = _ndarray(np.zeros((N, 4), np.float32))
         self._joint_bufs = (np.zeros((N, b.rig.n_joints, 3), np.float32), np.zeros((N, b.rig.n_joints, 3), np.float32))
@@ -906,12 +907,12 @@ class World:
         over this and the previous step's capsules."""
         from crowd_ik.kernels import game_kernels as gk
 
-        prev_a, prev_b = self._caps[self._caps_now]
+        prev_box = self._pose_box[self._caps_now]
         self._caps_now = 1 - self._caps_now
         a, b = self._caps[self._caps_now]
         joints = self._joint_bufs[1] if self._joints is self._joint_bufs[0] else self._joint_bufs[0]
-        gk.limb_capsules(self.crowd.world_pos, self._bone_parent, self._bone_radius, prev_a, prev_b, a, b, joints,
-                         self._owner_box)
+        gk.limb_capsules(self.crowd.world_pos, self._bone_parent, self._bone_radius, prev_box, a, b, joints,
+                         self._pose_box[self._caps_now], self._owner_box)
         self._joints = joints
 
     def _bullets_and_hits(self) -> None:

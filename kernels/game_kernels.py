@@ -17,20 +17,22 @@ def limb_capsules(
     world_pos: ndarray(dtype=vec3, ndim=2),
     bone_parent: ndarray(dtype=ti.i32, ndim=1),
     bone_radius: ndarray(ndim=1),
-    prev_a: ndarray(dtype=vec3, ndim=1),
-    prev_b: ndarray(dtype=vec3, ndim=1),
+    prev_box: ndarray(ndim=2),
     a: ndarray(dtype=vec3, ndim=1),
     b: ndarray(dtype=vec3, ndim=1),
     joints: ndarray(dtype=vec3, ndim=2),
+    pose_box: ndarray(ndim=2),
     box: ndarray(ndim=2),
 ):
     """From the joint positions world_pos (N, J, 3), one pass per character:
 
     a, b (C, 3) <- the limb capsules' ends (world_pos[n, bone_parent[k]], world_pos[n, k + 1]);
     joints (N, J, 3) <- world_pos (a copy, usually into host memory);
-    box (N, 4) <- x_min, z_min, x_max, z_max over the character's capsules now (a, b) and at the
-    previous step (prev_a, prev_b: (C, 3)), each grown by its bone_radius (B,): what the bullet
-    pool needs to skip characters no bullet can reach (BulletPool.advance owner_boxes).
+    pose_box (N, 4) <- x_min, z_min, x_max, z_max of the character's capsules, each grown by its
+    bone_radius (B,);
+    box (N, 4) <- the union of pose_box and prev_box (the previous step's pose_box): the box of
+    the character's limbs in both poses, what the bullet pool needs to skip characters no bullet
+    can reach (BulletPool.advance owner_boxes).
     """
     n_bones = bone_parent.shape[0]
     for n in range(world_pos.shape[0]):
@@ -45,20 +47,16 @@ def limb_capsules(
             a[c] = pa
             b[c] = pb
             r = bone_radius[k]
-            for p in ti.static(range(4)):
-                q = pa
-                if ti.static(p == 1):
-                    q = pb
-                elif ti.static(p == 2):
-                    q = prev_a[c]
-                elif ti.static(p == 3):
-                    q = prev_b[c]
-                lo = ti.min(lo, ti.Vector([q[0], q[2]]) - r)
-                hi = ti.max(hi, ti.Vector([q[0], q[2]]) + r)
-        box[n, 0] = lo[0]
-        box[n, 1] = lo[1]
-        box[n, 2] = hi[0]
-        box[n, 3] = hi[1]
+            lo = ti.min(lo, ti.min(ti.Vector([pa[0], pa[2]]), ti.Vector([pb[0], pb[2]])) - r)
+            hi = ti.max(hi, ti.max(ti.Vector([pa[0], pa[2]]), ti.Vector([pb[0], pb[2]])) + r)
+        pose_box[n, 0] = lo[0]
+        pose_box[n, 1] = lo[1]
+        pose_box[n, 2] = hi[0]
+        pose_box[n, 3] = hi[1]
+        box[n, 0] = ti.min(lo[0], prev_box[n, 0])
+        box[n, 1] = ti.min(lo[1], prev_box[n, 1])
+        box[n, 2] = ti.max(hi[0], prev_box[n, 2])
+        box[n, 3] = ti.max(hi[1], prev_box[n, 3])
 
 
 @ti.kernel

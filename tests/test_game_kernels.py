@@ -17,18 +17,24 @@ def test_limb_capsules_match_twin():
     parent = rig.arrays["parent"][1:].astype(np.int32)
     radius = rig.arrays["radius"][1:].astype(np.float32)
     world_pos = rng.normal(0.0, 3.0, (n, J, 3)).astype(np.float32)
-    prev_a = rng.normal(0.0, 3.0, (n * (J - 1), 3)).astype(np.float32)
-    prev_b = rng.normal(0.0, 3.0, (n * (J - 1), 3)).astype(np.float32)
-    a, b = np.zeros_like(prev_a), np.zeros_like(prev_b)
+    prev_box = np.sort(rng.normal(0.0, 3.0, (n, 2, 2)), axis=1).transpose(0, 2, 1).reshape(n, 4)
+    prev_box = np.ascontiguousarray(prev_box[:, [0, 2, 1, 3]], np.float32)  # x_min, z_min, x_max, z_max
+    a, b = np.zeros((n * (J - 1), 3), np.float32), np.zeros((n * (J - 1), 3), np.float32)
     joints = np.zeros_like(world_pos)
-    box = np.zeros((n, 4), np.float32)
-    gk.limb_capsules(world_pos, parent, radius, prev_a, prev_b, a, b, joints, box)
-    want = ref.limb_capsules(world_pos, parent, radius, prev_a, prev_b)
-    for got, exp in zip((a, b, joints, box), want):
+    pose_box, box = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
+    gk.limb_capsules(world_pos, parent, radius, prev_box, a, b, joints, pose_box, box)
+    want = ref.limb_capsules(world_pos, parent, radius, prev_box)
+    for got, exp in zip((a, b, joints, pose_box, box), want):
         np.testing.assert_array_equal(got, exp)
     # capsule n * B + k joins character n's joints parent[k] and k + 1
     np.testing.assert_array_equal(a[3 * (J - 1) + 4], world_pos[3, parent[4]])
     np.testing.assert_array_equal(b[3 * (J - 1) + 4], world_pos[3, 5])
+    # every capsule lies in its character's box, grown by its radius
+    owner = np.repeat(np.arange(n), J - 1)
+    r = np.tile(radius, n)
+    for end in (a, b):
+        assert np.all(end[:, 0] - r >= pose_box[owner, 0]) and np.all(end[:, 2] + r <= pose_box[owner, 3])
+    assert np.all(box[:, :2] <= np.minimum(pose_box[:, :2], prev_box[:, :2]))
 
 
 def test_world_keeps_host_joints_and_capsules_in_step():
@@ -41,10 +47,12 @@ def test_world_keeps_host_joints_and_capsules_in_step():
         np.testing.assert_array_equal(world.joints(), world.crowd.joint_positions())
         np.testing.assert_array_equal(world._joints_prev, before)
     a, b = world._caps[world._caps_now]
-    want_a, want_b, _, _ = ref.limb_capsules(world.joints(), world.body.bone_parent, world.body.bone_radius,
-                                             *(c.to_numpy() for c in world._caps[1 - world._caps_now]))
+    want_a, want_b, _, want_pose, want_box = ref.limb_capsules(
+        world.joints(), world.body.bone_parent, world.body.bone_radius, world._pose_box[1 - world._caps_now].to_numpy())
     np.testing.assert_array_equal(a.to_numpy(), want_a)
     np.testing.assert_array_equal(b.to_numpy(), want_b)
+    np.testing.assert_array_equal(world._pose_box[world._caps_now].to_numpy(), want_pose)
+    np.testing.assert_array_equal(world._owner_box.to_numpy(), want_box)
 
 
 def _dodge_inputs(body, n, seed):

@@ -5,17 +5,21 @@ from __future__ import annotations
 import numpy as np
 
 
-def limb_capsules(world_pos, bone_parent, bone_radius, prev_a, prev_b):
-    """(a (C, 3), b (C, 3), joints (N, J, 3), box (N, 4)) from world_pos (N, J, 3); see the kernel."""
+def limb_capsules(world_pos, bone_parent, bone_radius, prev_box):
+    """(a (C, 3), b (C, 3), joints (N, J, 3), pose_box (N, 4), box (N, 4)) from world_pos (N, J, 3) and
+    the previous pose's box prev_box (N, 4); see the kernel."""
     pos = np.asarray(world_pos, np.float32)
     n, n_bones = pos.shape[0], len(bone_parent)
     a = pos[:, bone_parent].reshape(-1, 3)
     b = pos[:, 1:].reshape(-1, 3)
     r = np.tile(np.asarray(bone_radius, np.float32), n)[:, None]
-    ends = np.stack([a, b, np.asarray(prev_a, np.float32), np.asarray(prev_b, np.float32)])[..., [0, 2]]
+    ends = np.stack([a, b])[..., [0, 2]]
     lo = (ends - r[None]).min(axis=0).reshape(n, n_bones, 2).min(axis=1)
     hi = (ends + r[None]).max(axis=0).reshape(n, n_bones, 2).max(axis=1)
-    return a, b, pos.copy(), np.hstack([lo, hi]).astype(np.float32)
+    pose_box = np.hstack([lo, hi]).astype(np.float32)
+    prev = np.asarray(prev_box, np.float32)
+    box = np.hstack([np.minimum(lo, prev[:, :2]), np.maximum(hi, prev[:, 2:])]).astype(np.float32)
+    return a, b, pos.copy(), pose_box, box
 
 
 def dodge_targets(rest_targets, lean, duck, guard, roots, yaw, planted, chest, lean_gain, duck_gain, planted_slot,
