@@ -20,8 +20,10 @@ cache is on, so after the first run this is mostly cache loading). The NumPy bas
 budget per cell: it starts on min(N, 100) characters and grows the subset while `repeats` runs still
 fit in the budget; solves/s is then the subset size over its best time (``numpy_n`` says which).
 
-The game workload: a crowd of humanoids (10,000 by default), one cold solve to the targets, then
-frames in which every target follows a small smooth offset, each solved with FABRIK warm-started
+The game workload (``game_workload``): a crowd of humanoids (10,000 by default) standing in natural
+poses, as in the game: their targets are where those poses put the effectors (reachable), the cold
+solve goes there from rest, then frames in which the head and hand targets follow a small smooth
+offset while the feet stay planted, each solved with FABRIK warm-started
 from the previous frame (at most 4 iterations), plus the bullet step of a full 4096-bullet pool
 against the crowd's limb capsules; the frame time is compared with one 60 Hz frame.
 
@@ -362,12 +364,28 @@ def _smooth_offsets(n: int, E: int, seed: int):
     return at
 
 
+def game_workload(n: int) -> Workload:
+    """As in the game: humanoids standing in natural poses (a quarter of their joint ranges around rest), their
+    effectors' targets where the pose puts them (reachable); the cold solve starts from rest."""
+    from crowd_ik.crowd import grid_positions
+    from crowd_ik.reference.fk import angles_to_rotations, forward_kinematics
+
+    rig = _rig("humanoid")
+    rng = np.random.default_rng(np.random.SeedSequence([SEED, 99]))
+    lo, hi = rig.angle_limits()
+    pose = (0.25 * (lo + (hi - lo) * rng.random((n, rig.n_dof)))).astype(np.float64)
+    roots = grid_positions(n, SPACING, 3)
+    pos, _ = forward_kinematics(rig, roots.astype(np.float64), np.zeros(n), angles_to_rotations(rig, pose))
+    targets = np.ascontiguousarray(pos[:, rig.arrays["eff_joint"]], np.float32)
+    return Workload("humanoid", rig, roots.astype(np.float32), np.zeros((n, rig.n_dof), np.float32), targets, 5e-3)
+
+
 def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     """The game workload: a cold solve, then warm-started 4-iteration FABRIK frames plus the bullet step."""
     from crowd_ik.bullets import BulletPool
     from crowd_ik.crowd import Crowd, Status
 
-    wl = make_workload("humanoid", n)
+    wl = game_workload(n)
     rig = wl.rig
     J, E = rig.n_joints, rig.n_effectors
     Crowd(rig, min(n, 16), spacing=SPACING).solve(wl.targets[: min(n, 16)], "fabrik", 2, wl.tolerance)  # compile
@@ -409,12 +427,13 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         gk.limb_capsules(crowd.world_pos, bone_parent, bone_radius, *caps[1 - now], *caps[now], joints[now], box)
 
     offsets = _smooth_offsets(n, E, SEED + 2)
+    feet = np.array([name.startswith("foot") for name in rig.effector_names])
     capsules(0)
     capsules(1)  # both capsule sets hold the cold pose
     now = 1
     solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, motion, hits = [], [], [], [], [], [], [], [], [], 0
     for f in range(GAME_WARMUP_FRAMES + frames):
-        targets = wl.targets + offsets((f + 1) / 60.0)
+        targets = wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0))  # feet planted
         now = 1 - now
         t0 = time.perf_counter()
         rep = crowd.solve(targets, method="fabrik", max_iterations=4, tolerance=wl.tolerance)
