@@ -331,6 +331,7 @@ class Crowd:
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient, work, acc_w,
             max_iterations, tolerance, int(not (self.rig.constraint_free and self._orient_zero)),
+            int(not self._orient_zero),
             self._error, self._iters, self._stalled,
         )
 

@@ -142,7 +142,8 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                           child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
                           eff_axis: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
                           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
-                          weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template()):
+                          weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template(),
+                          use_orient):
     """Rotations from the proposed positions, clamped to the limits, then FK, in one topological sweep."""
     q_root = yaw_quat(root_yaw[i])
     for j in range(parent.shape[0]):
@@ -205,7 +206,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                     q = twist_for_hinge_child(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, dof_start,
                                               child_start, child_list, work, acc_w)
             # an orientation target on this joint's effector overrides the swing of its local axis
-            for e in range(eff_joint.shape[0]):
+            for e in range(eff_joint.shape[0] if use_orient else 0):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
                     q = align_axis(k, axes[j, 0], axes[j, 1], q, eff_axis[e], qrot(inv_base, orient[i, e]))
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
@@ -240,13 +241,15 @@ def fabrik_solve(
     max_iterations: ti.i32,
     tolerance: ti.f32,
     recover_each_iteration: ti.i32,
+    use_orient: ti.i32,
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
 ):
     """Solve every character (N = root_pos.shape[0]) in place: local_rot, world_pos and world_rot are updated.
 
-    targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit directions or zero.
+    targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit directions or zero (read only
+    when use_orient is 1).
     Outputs: error (N,) final max effector distance, iterations (N,), stalled (N,) 1 if it stopped improving.
     recover_each_iteration 0 is for rigs without constraints (free ball joints, no orientation targets):
     there the recovered rotations reproduce the FABRIK positions exactly, so recovering them once after
@@ -254,7 +257,9 @@ def fabrik_solve(
     """
     for i in range(root_pos.shape[0]):
         err = effector_error(i, eff_joint, targets, weights, world_pos)
-        turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+        turn = 0.0
+        if use_orient:
+            turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
         it = 0
         flat = 0
         stop = 0
@@ -265,13 +270,15 @@ def fabrik_solve(
             if recover_each_iteration:
                 recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start,
                                       child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
-                                      world_rot, weights, orient, work, acc_w)
+                                      world_rot, weights, orient, work, acc_w, use_orient)
             else:
                 for j in range(parent.shape[0]):
                     if acc_w[i, j] > 0.0:
                         world_pos[i, j] = work[i, j]
             new_err = effector_error(i, eff_joint, targets, weights, world_pos)
-            new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+            new_turn = 0.0
+            if use_orient:
+                new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
             it += 1
             # stalled: four updates in a row that improved neither error by one part in a million
             if new_err > err * (1.0 - 1e-6) and new_turn >= turn * (1.0 - 1e-6):
@@ -285,7 +292,7 @@ def fabrik_solve(
         if it > 0 and not recover_each_iteration:
             recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
                                   eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos, world_rot, weights,
-                                  orient, work, acc_w)
+                                  orient, work, acc_w, use_orient)
             err = effector_error(i, eff_joint, targets, weights, world_pos)
         error[i] = err
         iterations[i] = it
