@@ -252,12 +252,17 @@ class Crowd:
     # ---------------------------------------------------------------- solve
     def solve(self, targets, method: str = "fabrik", max_iterations: int = 20, tolerance: float = 1e-3,
               weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
-              damping=None, joint_weights=None) -> SolveReport:
+              damping=None, joint_weights=None, balance_weight: float = 0.0) -> SolveReport:
         """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.
 
         weights (E,) or (N, E) >= 0; orientations (N, E, 3) world directions for the effectors' local
         axes (or None); method "fabrik" | "dls" | "ccd". rest_weight, velocity_weight, damping and
-        joint_weights (DOF,) shape the DLS objective. The result stays in the crowd.
+        joint_weights (DOF,) shape the DLS objective. balance_weight >= 0 adds static balance to it:
+        balance_weight * |(c - s)_xz|^2, c the centre of mass (bones' midpoints, mass ~ length x
+        radius^2), s the mean of the foot effectors (names "foot..."; a rig without them refuses
+        balance_weight > 0), and with it the solve also waits for |(c - s)_xz| <= tolerance (see
+        crowd_ik/reference/dls.py). Balance is a DLS objective: FABRIK and CCD ignore it. The result
+        stays in the crowd.
         """
         if method not in METHODS:
             raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
@@ -293,7 +298,10 @@ class Crowd:
             damping=None if damping is None else _non_negative(damping, "damping"),
             joint_weights=None if joint_weights is None
             else _as_array(joint_weights, "joint_weights", (self.rig.n_dof,)),
+            balance_weight=_non_negative(balance_weight, "balance_weight"),
         )
+        if params["balance_weight"] > 0 and not any(e.name.startswith("foot") for e in self.rig.effectors):
+            raise ValueError("balance_weight: the rig has no foot effectors")
         if params["joint_weights"] is not None and np.any(params["joint_weights"] < 0):
             raise ValueError(f"joint_weights: must be >= 0 (got {float(params['joint_weights'].min())})")
         full = np.zeros((N, E, 3), np.float32)
@@ -341,29 +349,32 @@ class Crowd:
         from crowd_ik.reference.dls import dls_settings
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
-        # rows: 3 per effector, 2 more for each effector with an axis (orientation target)
+        # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
         D, J = max(rig.n_dof, 1), rig.n_joints
-        R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum())
+        R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(params["balance_weight"] > 0)
         settings = dls_settings(rig, params["damping"], params["joint_weights"])
         joint_w = np.zeros(D + 1, np.float32)
         joint_w[: rig.n_dof] = 1.0 if params["joint_weights"] is None else params["joint_weights"]
         small = {}  # per-solve settings: a few dozen numbers
         for name, value in (("eff_lim", settings["eff_lim"]), ("joint_w", joint_w), ("jmode", settings["jmode"]),
-                            ("lo", settings["lo32"]), ("hi", settings["hi32"])):
+                            ("lo", settings["lo32"]), ("hi", settings["hi32"]),
+                            ("com_w", settings["com_w"].astype(np.float32)),
+                            ("support_w", settings["support_w"].astype(np.float32))):
             small[name] = self.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
             small[name].from_numpy(value)
         dls.dls_solve(
             ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], ra["cone"],
             ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"],
-            small["eff_lim"], small["joint_w"], self.root_pos, self.root_yaw, self.local_rot, self.world_pos,
-            self.world_rot, self._targets, self._weights, self._orient,
+            small["eff_lim"], small["joint_w"], small["com_w"], small["support_w"], self.root_pos, self.root_yaw,
+            self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights, self._orient,
             self.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
             self.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
             self.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
             self.scratch("dls_jac", ti.f32, (N, R, D + 1)), self.scratch("dls_rows", ti.f32, (N, 2, R)),
             self.scratch("dls_sys", ti.f32, (N, R, R)),
             max_iterations, tolerance, settings["damping"], settings["length"],
-            params["rest_weight"], params["velocity_weight"], self._error, self._iters, self._stalled,
+            params["rest_weight"], params["velocity_weight"], params["balance_weight"], self._error, self._iters,
+            self._stalled,
         )
 
     def _solve_ccd(self, max_iterations: int, tolerance: float, params: dict) -> None:

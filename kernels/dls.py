@@ -31,11 +31,18 @@ transpose, pseudoinverse and damped least squares"; Buss & Kim 2005 for the erro
    and it gets ESCAPE_ATTEMPTS attempts to beat the pose before the kick; otherwise that pose comes
    back. So F never rises between the poses a solve can end in.
 
-A character stops when every active position error and every scaled orientation error is <=
-tolerance. It is stalled after STALL_AFTER rejected or flat (gain < FLAT * F) attempts in a row,
-when F falls by less than PROGRESS over WINDOW accepted steps, when lam passes LAM_CAP * L, or when
-its attempts run out (2 * max_iterations + 8), each unless an escape is left. The constants live in
-crowd_ik/reference/dls.py, shared with the NumPy twin.
+7. Static balance (balance_weight beta_b > 0; crowd_ik/reference/dls.py defines the centre of mass c
+   and the support point s, both weighted sums of joint positions): 2 more rows, sqrt(beta_b) times
+   the x and z rows of d(c - s)/dq aiming at -(c - s)_xz, and beta_b |(c - s)_xz|^2 in F. A DOF with
+   world axis w at joint n has the column w x sum_j a_j (p_j - p_n) over the weighted points j below
+   n (bone midpoints, minus the feet), summed once per build in qwork[i, Q_COM] by a pass from the
+   leaves up.
+
+A character stops when every active position error, every scaled orientation error and the balance
+error |(c - s)_xz| are <= tolerance. It is stalled after STALL_AFTER rejected or flat (gain < FLAT * F)
+attempts in a row, when F falls by less than PROGRESS over WINDOW accepted steps, when lam passes
+LAM_CAP * L, or when its attempts run out (2 * max_iterations + 8), each unless an escape is left. The
+constants live in crowd_ik/reference/dls.py, shared with the NumPy twin.
 """
 
 import taichi as ti
@@ -52,9 +59,9 @@ ndarray = ti.types.ndarray
 
 # Slots of the per-DOF scratch work[i, slot, d] and of the per-joint quaternion scratch qwork[i, slot, j].
 THETA, THETA_BAK, THETA0, MP, MG, STEP, FREE, G, THETA_SAVE = 0, 1, 2, 3, 4, 5, 6, 7, 8
-Q_BAK, Q_START, Q_SAVE = 0, 1, 2
+Q_BAK, Q_START, Q_SAVE, Q_COM = 0, 1, 2, 3
 N_DOF_SLOTS = 9
-N_Q_SLOTS = 3
+N_Q_SLOTS = 4
 
 
 @ti.func
@@ -165,8 +172,8 @@ def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(
               eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(), local_rot: ti.template(),
               rel_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
               weights: ti.template(), orient: ti.template(), work: ti.template(), qwork: ti.template(),
-              length, rest_w, vel_w):
-    """(F, max position error, max orientation error * L) of character i's current pose.
+              com_w: ti.template(), support_w: ti.template(), length, rest_w, vel_w, bal_w):
+    """(F, max position error, max(orientation error * L, balance error)) of character i's current pose.
 
     F counts each position term as |t - p|^2 - beyond^2, beyond = max(|t - base| - reach, 0), the part
     no pose can remove: the same minimiser and the same comparisons, but for a target out of reach it
@@ -211,6 +218,17 @@ def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(
                 else:
                     q = local_rot[i, j]
                     f += rest_w * qlog(q).norm_sqr() + vel_w * qlog(qmul(q, qconj(qwork[i, Q_START, j]))).norm_sqr()
+    if bal_w > 0.0:
+        b = vec3(0.0)  # c - s
+        for j in range(parent.shape[0]):
+            p = rel_pos[i, j]
+            mid = p
+            if parent[j] >= 0:
+                mid = 0.5 * (rel_pos[i, parent[j]] + p)
+            b += com_w[j] * mid - support_w[j] * p
+        bb = b.x * b.x + b.z * b.z
+        f += bal_w * bb
+        oerr = ti.max(oerr, ti.sqrt(bb))
     return vec3(f, perr, oerr)
 
 
@@ -242,45 +260,75 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                  eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(),
                  root_yaw: ti.template(), local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(),
                  targets: ti.template(), weights: ti.template(), orient: ti.template(), work: ti.template(),
-                 qwork: ti.template(), jac: ti.template(), rows: ti.template(), length, rest_w, vel_w):
-    """Fill jac[i, :R], rows[i, 0, :R] (the aimed error) and work[i, G]; return R, the number of rows."""
+                 qwork: ti.template(), com_w: ti.template(), support_w: ti.template(), jac: ti.template(),
+                 rows: ti.template(), length, rest_w, vel_w, bal_w):
+    """Fill jac[i, :R], rows[i, 0, :R] (the aimed error) and work[i, G]; return R, the number of rows.
+
+    The balance rows (bal_w > 0) come last, after the effectors' rows.
+    """
     D = jac.shape[2]
     for r, d in ti.ndrange(jac.shape[1], D):
         jac[i, r, d] = 0.0
     base = rel_pos[i, 0]
+    E = eff_joint.shape[0]
+    J = parent.shape[0]
     r = 0
-    for e in range(eff_joint.shape[0]):
-        w = weights[i, e]
-        if w > 0.0:
-            sw = ti.sqrt(w)
-            k = eff_joint[e]
-            p_eff = rel_pos[i, k]
-            reach = eff_lim[e, 0]
-            dmax = eff_lim[e, 1]
-            tgt = targets[i, e] - root_pos[i]
-            v = tgt - base
-            dist = v.norm()
-            if dist > reach + dmax:
-                tgt = base + v * ((reach + dmax) / dist)
-            d = tgt - p_eff
-            dn = d.norm()
-            if dn > dmax:
-                d = d * (dmax / dn)
-            for c in ti.static(range(3)):
-                rows[i, 0, r + c] = sw * d[c]
-            ori = has_orientation(i, e, eff_has_axis, orient)
+    # e = E is the balance term: its walk visits every joint (n = J-1 .. 0) instead of a path to the root
+    # (one walk for both keeps a single inlined dof_axes: faster compiles)
+    for e in range(E + 1):
+        bal = e == E
+        sw = 0.0
+        if bal:
+            sw = ti.sqrt(ti.max(bal_w, 0.0))
+        else:
+            sw = ti.sqrt(ti.max(weights[i, e], 0.0))
+        if sw > 0.0:
+            k = J - 1
+            p_eff = vec3(0.0)
+            ori = False
             u1 = vec3(0.0)
             u2 = vec3(0.0)
-            if ori:
-                a = qrot(world_rot[i, k], eff_axis[e]).normalized()
-                rv = swing_vector(a, orient[i, e])
-                ang = rv.norm()
-                if ang > ORI_CLAMP:
-                    rv = rv * (ORI_CLAMP / ang)
-                u1 = perpendicular(a)
-                u2 = ti.math.cross(a, u1)
-                rows[i, 0, r + 3] = sw * length * rv.dot(u1)
-                rows[i, 0, r + 4] = sw * length * rv.dot(u2)
+            if bal:
+                # qwork[i, Q_COM, n] = (sum a_j p_j, sum a_j) over the weighted points strictly below joint n:
+                # the midpoint of the bone ending at j (a_j = com_w[j]) and a foot at j (a_j = -support_w[j])
+                for j in range(J):
+                    qwork[i, Q_COM, j] = vec4(0.0)
+                for jj in range(J - 1):
+                    j = J - 1 - jj
+                    p = rel_pos[i, j]
+                    own = com_w[j] * 0.5 * (rel_pos[i, parent[j]] + p) - support_w[j] * p
+                    acc = qwork[i, Q_COM, j]
+                    qwork[i, Q_COM, parent[j]] += vec4(own + acc.xyz, com_w[j] - support_w[j] + acc.w)
+                total = qwork[i, Q_COM, 0].xyz - support_w[0] * rel_pos[i, 0]  # c - s (the root has no bone)
+                rows[i, 0, r] = -sw * total.x
+                rows[i, 0, r + 1] = -sw * total.z
+            else:
+                k = eff_joint[e]
+                p_eff = rel_pos[i, k]
+                reach = eff_lim[e, 0]
+                dmax = eff_lim[e, 1]
+                tgt = targets[i, e] - root_pos[i]
+                v = tgt - base
+                dist = v.norm()
+                if dist > reach + dmax:
+                    tgt = base + v * ((reach + dmax) / dist)
+                d = tgt - p_eff
+                dn = d.norm()
+                if dn > dmax:
+                    d = d * (dmax / dn)
+                for c in ti.static(range(3)):
+                    rows[i, 0, r + c] = sw * d[c]
+                ori = has_orientation(i, e, eff_has_axis, orient)
+                if ori:
+                    a = qrot(world_rot[i, k], eff_axis[e]).normalized()
+                    rv = swing_vector(a, orient[i, e])
+                    ang = rv.norm()
+                    if ang > ORI_CLAMP:
+                        rv = rv * (ORI_CLAMP / ang)
+                    u1 = perpendicular(a)
+                    u2 = ti.math.cross(a, u1)
+                    rows[i, 0, r + 3] = sw * length * rv.dot(u1)
+                    rows[i, 0, r + 4] = sw * length * rv.dot(u2)
             n = k
             while n >= 0:
                 kd = kind[n]
@@ -288,18 +336,31 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                     s = dof_start[n]
                     wm = dof_axes(i, n, kd, s, jmode[n] == 1, parent, axes, root_yaw, world_rot, work)
                     lever = p_eff - rel_pos[i, n]
+                    if bal:
+                        acc = qwork[i, Q_COM, n]
+                        lever = acc.xyz - acc.w * rel_pos[i, n]
                     for c in range(kd):
                         col = vec3(wm[0, c], wm[1, c], wm[2, c])
                         dp = ti.math.cross(col, lever)
-                        for cc in ti.static(range(3)):
-                            jac[i, r + cc, s + c] = sw * dp[cc]
-                        if ori:
-                            jac[i, r + 3, s + c] = sw * length * col.dot(u1)
-                            jac[i, r + 4, s + c] = sw * length * col.dot(u2)
-                n = parent[n]
-            r += 3
-            if ori:
+                        if bal:
+                            jac[i, r, s + c] = sw * dp.x
+                            jac[i, r + 1, s + c] = sw * dp.z
+                        else:
+                            for cc in ti.static(range(3)):
+                                jac[i, r + cc, s + c] = sw * dp[cc]
+                            if ori:
+                                jac[i, r + 3, s + c] = sw * length * col.dot(u1)
+                                jac[i, r + 4, s + c] = sw * length * col.dot(u2)
+                if bal:
+                    n -= 1
+                else:
+                    n = parent[n]
+            if bal:
                 r += 2
+            else:
+                r += 3
+                if ori:
+                    r += 2
     # g = -(alpha rho + beta nu): rho, nu in the columns' coordinates (world axes for quaternion joints)
     for d in range(D):
         work[i, G, d] = 0.0
@@ -508,6 +569,8 @@ def dls_solve(
     eff_has_axis: ndarray(dtype=ti.i32, ndim=1),
     eff_lim: ndarray(ndim=2),
     joint_w: ndarray(ndim=1),
+    com_w: ndarray(ndim=1),
+    support_w: ndarray(ndim=1),
     root_pos: ndarray(dtype=vec3, ndim=1),
     root_yaw: ndarray(ndim=1),
     local_rot: ndarray(dtype=vec4, ndim=2),
@@ -528,6 +591,7 @@ def dls_solve(
     length: ti.f32,
     rest_w: ti.f32,
     vel_w: ti.f32,
+    bal_w: ti.f32,
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
@@ -535,10 +599,12 @@ def dls_solve(
     """Solve every character (N = root_pos.shape[0]) in place: local_rot, world_pos and world_rot are updated.
 
     Rig arrays as in Rig.arrays; eff_lim (E, 2): per effector the reach and d_max (metres);
-    joint_w (D+1,) per-DOF weights (0 freezes a DOF). targets (N, E, 3) world metres; weights (N, E);
-    orient (N, E, 3) unit directions or zero. Scratch: rel_pos (N, J), qwork (N, 3, J),
+    joint_w (D+1,) per-DOF weights (0 freezes a DOF); com_w, support_w (J,) the balance weights of
+    crowd_ik.reference.dls.balance_weights. targets (N, E, 3) world metres; weights (N, E);
+    orient (N, E, 3) unit directions or zero. Scratch: rel_pos (N, J), qwork (N, 4, J),
     work (N, 9, D+1), jac (N, R, D+1), rows (N, 2, R), sys (N, R, R), R = 3E + 2 per effector with
-    an axis. damping and length in metres (damping > 0); rest_w, vel_w in m^2/rad^2. Outputs:
+    an axis (+ 2 with bal_w > 0). damping and length in metres (damping > 0); rest_w, vel_w in
+    m^2/rad^2; bal_w (dimensionless) weighs the squared balance error in m^2. Outputs:
     error (N,) final max effector distance, iterations (N,) accepted steps, stalled (N,) 1 if LM
     could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.reference.dls.dls_settings.
     """
@@ -570,7 +636,8 @@ def dls_solve(
             if first == 1:  # the projected start pose is the reference of the velocity term
                 copy_pose(i, THETA, THETA0, -1, Q_START, parent, local_rot, work, qwork)
             new = objective(i, parent, kind, jmode, dof_start, eff_joint, eff_axis, eff_has_axis, eff_lim, root_pos,
-                            local_rot, rel_pos, world_rot, targets, weights, orient, work, qwork, length, rest_w, vel_w)
+                            local_rot, rel_pos, world_rot, targets, weights, orient, work, qwork, com_w, support_w,
+                            length, rest_w, vel_w, bal_w)
             need_fk = 0
             if first == 1:
                 obj = new
@@ -650,7 +717,8 @@ def dls_solve(
                 if kick == 0:
                     R = build_system(i, parent, kind, jmode, axes, dof_start, eff_joint, eff_axis,
                                      eff_has_axis, eff_lim, root_pos, root_yaw, local_rot, rel_pos, world_rot, targets,
-                                     weights, orient, work, qwork, jac, rows, length, rest_w, vel_w)
+                                     weights, orient, work, qwork, com_w, support_w, jac, rows, length, rest_w,
+                                     vel_w, bal_w)
                     for d in range(D):
                         work[i, FREE, d] = 1.0
                     failed = 0

@@ -4,6 +4,17 @@ The same algorithm as the kernel (read its docstring for the maths), vectorised 
 R x R systems solved by np.linalg.solve on (N, R, R) stacks; loops run over joints, effectors and
 iterations only. Used by the tests as the kernel's oracle and by the benchmark as the NumPy
 baseline. :func:`dls_settings` holds the constants both share (so they cannot drift apart).
+
+Static balance (the lecture's g(q) = |f_com(q) - f_feet(q)|^2): the centre of mass c = sum_b m_b
+midpoint_b / sum_b m_b over the bones (bone b from joint b's parent to joint b; its mass taken
+proportional to its length times rig.joints[b].radius^2, a uniform-density cylinder), the support
+point s = the mean of the foot effectors' positions (effectors named "foot..."), and the balance
+error the horizontal (x, z) part of c - s. With balance_weight = beta_b > 0 the objective gains
+beta_b |(c - s)_xz|^2 and the system two rows sqrt(beta_b) (d(c - s)/dq)_x,z aiming at -(c - s)_x,z.
+Both c and s are weighted sums of joint positions (:func:`balance_weights`), so one walk up the tree
+gives, per joint n, the lever sum_j a_j (p_j - p_n) over the points below it, and the column of a
+DOF with world axis w at joint n is w x lever (the support moves with the feet: its rows are
+subtracted, not held fixed). The solve also waits for |(c - s)_xz| <= tolerance, like an orientation.
 """
 
 from __future__ import annotations
@@ -33,6 +44,35 @@ MAX_ESCAPES = 3  # escapes per solve
 ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its kick
 
 
+def balance_weights(rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+    """(com_w (J,), support_w (J,)) float64: c - s = sum_j com_w[j] midpoint_j - support_w[j] p_j.
+
+    com_w[j] is the mass fraction of the bone ending at joint j (0 for the root), mass proportional to
+    bone length x radius^2 (rig.joints[j].radius); support_w[j] is 1 / (number of foot effectors) at a
+    foot effector's joint (effector names starting with "foot"), else 0. Both sum to 1 (support_w to 0
+    for a rig without feet).
+    """
+    radius = np.array([j.radius for j in rig.joints], np.float64)
+    mass = rig.bone_lengths * radius**2
+    mass[0] = 0.0
+    com_w = mass / mass.sum()
+    support_w = np.zeros(rig.n_joints)
+    feet = [e.joint for e in rig.effectors if e.name.startswith("foot")]
+    for j in feet:
+        support_w[j] += 1.0 / len(feet)
+    return com_w, support_w
+
+
+def _com_minus_support(com_w, support_w, parent, pos):
+    mid = 0.5 * (pos[..., np.maximum(parent, 0), :] + pos)
+    return np.einsum("j,...jc->...c", com_w, mid) - np.einsum("j,...jc->...c", support_w, pos)
+
+
+def balance_offset(rig: Rig, pos: np.ndarray) -> np.ndarray:
+    """(..., 3) c - s, the centre of mass minus the support point, of joint positions pos (..., J, 3) metres."""
+    return _com_minus_support(*balance_weights(rig), np.array([j.parent for j in rig.joints]), np.asarray(pos))
+
+
 def dls_settings(rig: Rig, damping: float | None = None, joint_weights=None) -> dict:
     """Constants of a DLS solve of ``rig``: L, the damping (metres), the per-effector reach and d_max, joint modes.
 
@@ -46,6 +86,7 @@ def dls_settings(rig: Rig, damping: float | None = None, joint_weights=None) -> 
     angle-mode ball joint kept 0.01 rad inside +-pi/2 (off gimbal lock, its angles are then exactly
     the ones Crowd.angles() reports);
     lo32, hi32 (D+1,) float32 the same for the kernel (+-1e30 for none, one padding entry).
+    com_w, support_w (J,) float64: :func:`balance_weights`; has_feet: whether the rig has foot effectors.
     """
     reach = np.asarray(rig.reach, np.float64)
     bones = np.array([len(rig.path_to_root(e.joint)) - 1 for e in rig.effectors], np.float64)
@@ -67,8 +108,9 @@ def dls_settings(rig: Rig, damping: float | None = None, joint_weights=None) -> 
     big = 1e30
     lo32 = np.concatenate([np.clip(lo, -big, big), [0.0]]).astype(np.float32)
     hi32 = np.concatenate([np.clip(hi, -big, big), [0.0]]).astype(np.float32)
+    com_w, support_w = balance_weights(rig)
     return dict(length=length, damping=lam, eff_lim=np.ascontiguousarray(eff_lim), jmode=jmode, lo=lo, hi=hi,
-                lo32=lo32, hi32=hi32)
+                lo32=lo32, hi32=hi32, com_w=com_w, support_w=support_w, has_feet=bool(support_w.any()))
 
 
 def qlog(q: np.ndarray) -> np.ndarray:
@@ -110,6 +152,8 @@ class _Rig:
     def __init__(self, rig: Rig, settings: dict):
         self.rig = rig
         jmode, lo, hi = settings["jmode"], settings["lo"], settings["hi"]
+        self.com_w, self.support_w = settings["com_w"], settings["support_w"]
+        self.parent = np.array([j.parent for j in rig.joints])
         self.joints = []
         for j, joint in enumerate(rig.joints):
             k, s = joint.dof, int(rig.dof_start[j])
@@ -146,8 +190,27 @@ def _fk(rig, yaw, rot):
     return forward_kinematics(rig, np.zeros((rot.shape[0], 3)), yaw, rot)
 
 
-def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w):
-    """(F, max position error, max orientation error * L); F's position terms as in the kernel (minus beyond^2)."""
+def _balance_sums(R: _Rig, pos):
+    """(c - s (n, 3), levers (n, J, 3)): per joint n, sum_j a_j (p_j - p_n) over the points j below it.
+
+    The points are the bones' midpoints (a_j = com_w[j]) and the feet (a_j = -support_w[j]); the bone
+    ending at n and a foot at n are not below n (a rotation at n does not move them).
+    """
+    n, J = pos.shape[0], pos.shape[1]
+    acc = np.zeros((n, J, 4))  # per joint: sum a_j p_j (xyz) and sum a_j (w) over the points strictly below
+    own = np.zeros((n, J, 4))
+    for j, jt in enumerate(R.joints):
+        p = pos[:, jt["parent"]] if jt["parent"] >= 0 else pos[:, j]
+        own[:, j, :3] = R.com_w[j] * 0.5 * (p + pos[:, j]) - R.support_w[j] * pos[:, j]
+        own[:, j, 3] = R.com_w[j] - R.support_w[j]
+    for j in range(J - 1, 0, -1):
+        acc[:, R.joints[j]["parent"]] += own[:, j] + acc[:, j]
+    total = acc[:, 0, :3] + own[:, 0, :3]
+    return total, acc[..., :3] - acc[..., 3:] * pos
+
+
+def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0):
+    """(F, max position error, max(orientation error * L, balance error)); F's position terms as in the kernel."""
     rig = R.rig
     n = tgt.shape[0]
     f = np.zeros(n)
@@ -185,6 +248,11 @@ def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w
             else:
                 q = st["rot"][:, j]
                 f += rest_w * np.sum(qlog(q) ** 2, -1) + vel_w * np.sum(qlog(qmul(q, qconj(st["q0"][:, j]))) ** 2, -1)
+    if bal_w > 0:
+        b = _com_minus_support(R.com_w, R.support_w, R.parent, st["pos"])[:, [0, 2]]
+        bb = np.sum(b * b, -1)
+        f += bal_w * bb
+        oerr = np.maximum(oerr, np.sqrt(bb))
     return f, perr, oerr
 
 
@@ -205,12 +273,16 @@ def _axes(jt, base, theta):
     return [qrot(base, ex), qrot(rx, ey), qrot(qmul(rx, axis_angle(np.eye(3)[1], theta[:, s + 1])), ez)]
 
 
-def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w):
-    """(jac (n, 5E, D), aimed error (n, 5E), g (n, D)); rows of inactive effectors/orientations are zero."""
+def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0):
+    """(jac (n, 5E [+ 2], D), aimed error (n, 5E [+ 2]), g (n, D)); rows of inactive effectors/orientations are zero.
+
+    With bal_w > 0 the last two rows are the balance rows (x, z of c - s).
+    """
     rig = R.rig
     n, D, E = tgt.shape[0], rig.n_dof, rig.n_effectors
-    jac = np.zeros((n, 5 * E, D))
-    err = np.zeros((n, 5 * E))
+    nb = 2 if bal_w > 0 else 0
+    jac = np.zeros((n, 5 * E + nb, D))
+    err = np.zeros((n, 5 * E + nb))
     pos, wrot, theta = st["pos"], st["wrot"], st["theta"]
     q_root = _yaw(st["yaw"])
     eff_axis = rig.arrays["eff_axis"].astype(np.float64)
@@ -254,6 +326,20 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w):
                     scale = np.where(has, sw[:, 0] * length, 0.0)
                     jac[:, r + 3, jt["s"] + c] = scale * np.sum(col * u1, -1)
                     jac[:, r + 4, jt["s"] + c] = scale * np.sum(col * u2, -1)
+    if bal_w > 0:
+        sb = np.sqrt(bal_w)
+        total, lever = _balance_sums(R, pos)
+        err[:, 5 * E] = -sb * total[:, 0]
+        err[:, 5 * E + 1] = -sb * total[:, 2]
+        for jn, jt in enumerate(R.joints):
+            if jt["k"] == 0:
+                continue
+            if jn not in axes_of:
+                axes_of[jn] = _axes(jt, _parent_rot(jt, q_root, wrot), theta)
+            for c, col in enumerate(axes_of[jn]):
+                dc = np.cross(col, lever[:, jn])
+                jac[:, 5 * E, jt["s"] + c] = sb * dc[:, 0]
+                jac[:, 5 * E + 1, jt["s"] + c] = sb * dc[:, 2]
     g = np.zeros((n, D))
     if rest_w > 0 or vel_w > 0:
         for j, jt in enumerate(R.joints):
@@ -342,7 +428,8 @@ def _kick(R: _Rig, theta, free, joint_w):
 
 
 def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
-              tolerance=1e-3, damping=None, rest_weight=0.0, velocity_weight=0.0, joint_weights=None):
+              tolerance=1e-3, damping=None, rest_weight=0.0, velocity_weight=0.0, joint_weights=None,
+              balance_weight=0.0):
     """Solve N characters from local rotations rot (N, J, 4); returns (rot, world_pos, error, iterations, stalled).
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world metres; weights (N, E) (default ones);
@@ -362,8 +449,10 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     weights = np.ones((N, E)) if weights is None else np.broadcast_to(np.asarray(weights, np.float64), (N, E))
     orient = np.zeros((N, E, 3)) if orientations is None else np.asarray(orientations, np.float64)
     length, lam0, eff_lim = settings["length"], settings["damping"], settings["eff_lim"].astype(np.float64)
-    rest_w, vel_w = float(rest_weight), float(velocity_weight)
-    obj_args = (tgt, weights, orient, eff_lim, length, rest_w, vel_w)
+    rest_w, vel_w, bal_w = float(rest_weight), float(velocity_weight), float(balance_weight)
+    if bal_w > 0 and not settings["has_feet"]:
+        raise ValueError("balance_weight: the rig has no foot effectors")
+    obj_args = (tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w)
 
     rot = np.array(rot, np.float64)
     theta = np.zeros((N, D))
@@ -374,7 +463,8 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     # the first pass applies a zero step: the start pose projected onto the DOFs and limits
     st = _apply(R, dict(theta=theta, theta0=theta, rot=rot, q0=rot, pos=pos, wrot=wrot, yaw=yaw), np.zeros((N, D)))
     st["theta0"], st["q0"] = st["theta"].copy(), st["rot"].copy()
-    obj = np.stack(_objective(R, st, *obj_args), axis=1)  # (N, 3): F, max position error, max orientation error
+    # (N, 3): F, max position error, max(orientation error * L, balance error)
+    obj = np.stack(_objective(R, st, *obj_args), axis=1)
     ref_f, ref_acc = obj[:, 0].copy(), np.zeros(N, np.int32)
     lam = np.full(N, lam0)
     accepted = np.zeros(N, np.int32)
@@ -407,7 +497,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         if m.size == 0:
             return
         sub = _take(st, m)
-        jac, err, g = _build(R, sub, tgt[m], weights[m], orient[m], eff_lim, length, rest_w, vel_w)
+        jac, err, g = _build(R, sub, tgt[m], weights[m], orient[m], eff_lim, length, rest_w, vel_w, bal_w)
         fr = np.ones((m.size, D))
         lam2 = lam[m] ** 2
         stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w)
@@ -478,4 +568,26 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     return st["rot"], world_pos, obj[:, 1].copy(), accepted, stop.astype(np.int32)
 
 
-__all__ = ["dls_solve", "dls_settings", "qlog", "qexp", "swing_vector"]
+def balance_rows(rig: Rig, root_yaw, rot, balance_weight: float = 1.0, joint_weights=None):
+    """(aimed error (N, 2), rows (N, 2, D)): the solver's balance rows at local rotations rot (N, J, 4).
+
+    The columns are the solver's (angle DOFs, or world-axis rotations of quaternion-mode ball joints).
+    """
+    settings = dls_settings(rig, None, joint_weights)
+    R = _Rig(rig, settings)
+    rot = np.asarray(rot, np.float64)
+    N, E = rot.shape[0], rig.n_effectors
+    yaw = np.asarray(root_yaw, np.float64)
+    theta = np.zeros((N, rig.n_dof))
+    for j, jt in enumerate(R.joints):
+        if jt["angle"]:
+            theta[:, jt["s"] : jt["s"] + jt["k"]] = joint_angles(jt["k"], jt["axes"], rot[:, j])
+    pos, wrot = _fk(rig, yaw, rot)
+    st = dict(theta=theta, theta0=theta, rot=rot, q0=rot, pos=pos, wrot=wrot, yaw=yaw)
+    jac, err, _ = _build(R, st, np.zeros((N, E, 3)), np.zeros((N, E)), np.zeros((N, E, 3)),
+                         settings["eff_lim"].astype(np.float64), settings["length"], 0.0, 0.0, float(balance_weight))
+    return err[:, 5 * E :], jac[:, 5 * E :]
+
+
+__all__ = ["dls_solve", "dls_settings", "balance_weights", "balance_offset", "balance_rows", "qlog", "qexp",
+           "swing_vector"]
