@@ -140,18 +140,24 @@ class Grid:
     def build(self, a0, b0, a1, b1, radius, pad: float, owner, owner_alive, masked: bool = False) -> int:
         """Bin segments (S, 3) x 4 (two poses), grown by radius (S,) + pad; only live owners; with
         masked=True only into the cells marked in `mask`. Returns entries used."""
-        import taichi as ti
-
         from crowd_ik.kernels import projectiles as kp
 
         args = (a0, b0, a1, b1, radius, pad, owner, owner_alive, *self.geometry, int(masked), self.mask,
                 self.cell_count, self.cell_start, self.cursor, self.total)
         kp.build_grid(*args, self.entries)
         total = int(self.total[0])
-        if total > self.entries.shape[0]:  # rare: grow, and bin again into the larger list
-            self.entries = ti.ndarray(ti.i32, shape=(max(total, 2 * self.entries.shape[0]),))
+        if self.grow(total):  # rare: bin again into the larger list
             kp.build_grid(*args, self.entries)
         return total
+
+    def grow(self, total: int) -> bool:
+        """Make room for `total` entries (at least doubling); False when they already fit."""
+        import taichi as ti
+
+        if total <= self.entries.shape[0]:
+            return False
+        self.entries = ti.ndarray(ti.i32, shape=(max(total, 2 * self.entries.shape[0]),))
+        return True
 
     def pairs(self) -> np.ndarray:
         """(K, 2) int64 (cell, segment id) pairs sorted by cell then id: the grid's contents, for tests."""
@@ -208,15 +214,12 @@ class BulletPool:
         self.bullet_key = ti.ndarray(ti.i64, shape=(P,))
         self.bullet_toi = ti.ndarray(ti.f32, shape=(P,))
         self.bullet_point = ti.ndarray(vec3, shape=(P,))
-        self.bullet_end = ti.ndarray(vec3, shape=(P,))       # pos + vel * horizon, for threats
-        self._ident = ti.ndarray(ti.i32, shape=(P,))
-        self._ident.from_numpy(np.arange(P, dtype=np.int32))
-        self._zero = ti.ndarray(ti.f32, shape=(P,))
         self.bullet_char.fill(-1)
         self.limb_grid = Grid(bounds, cell_size, 4 * capsule_capacity)
         self.threat_grid = Grid(bounds, cell_size, 4 * P)
         self._n_chars = -1
         self._threat_out = None
+        self._substeps_out = np.zeros(1, np.int32)  # written by prepare_limbs (host memory)
         self.last_substeps = 0
 
     # -- host views ---------------------------------------------------------------------------
@@ -296,14 +299,16 @@ class BulletPool:
 
     def advance(self, dt: float, gravity: float, drag: float, lifetime: float, capsules_a, capsules_b, radii,
                 owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16,
-                owner_boxes=None) -> Hits:
+                owner_boxes=None, export_to=None) -> Hits:
         """step + collide, sub-stepped: k = substep_count(prev pose, pose) sub-steps of dt / k.
 
         prev_a, prev_b (C, 3): the limbs at the previous step (None: the limbs did not move, k = 1).
         Sub-step j tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
         number used is left in self.last_substeps. owner_boxes (n_chars, 4) float32, optional:
         x_min, z_min, x_max, z_max of each character's limbs in both poses grown by their radii;
-        characters whose box no bullet can reach this step are left out (of sub-step counting too).
+        characters whose box no bullet can reach this step are left out (of sub-step counting too);
+        the step then takes 1 + k launches (prepare_limbs, advance_bullets per sub-step). export_to:
+        (pos, vel, alive) host arrays to receive export() at the end of the step, or None.
         """
         args = (_positive("dt", dt), _non_negative("gravity", gravity), _non_negative("drag", drag),
                 _positive("lifetime", lifetime))
@@ -311,7 +316,7 @@ class BulletPool:
         if prev_a is None or prev_b is None:
             prev_a, prev_b = capsules_a, capsules_b
         return self._run(args, prev_a, prev_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars,
-                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes)
+                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes, export_to=export_to)
 
     def threats(self, points, char_alive, horizon: float, reach: float) -> Threats:
         """Per character, the bullet that first passes within `reach` m of points (N, 3) within `horizon` s.
@@ -329,15 +334,33 @@ class BulletPool:
         if self._threat_out is None or self._threat_out[0].shape[0] != n:
             self._threat_out = (np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
                                 np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
-        out = self._threat_out
-        kp.predict_bullets(self.pos, self.vel, horizon, self.bullet_end)
-        self.threat_grid.build(self.pos, self.bullet_end, self.pos, self.bullet_end, self._zero, reach,
-                               self._ident, self.alive)
-        kp.find_threats(points, char_alive, self.pos, self.vel, self.alive, horizon, reach,
-                        *self.threat_grid.geometry, self.threat_grid.cell_start, self.threat_grid.entries, *out)
-        return Threats(*(o.copy() for o in out))
+        g = self.threat_grid
+        for _ in range(2):  # a second launch only when the grid's entry list had to grow
+            kp.threat_pass(points, char_alive, self.pos, self.vel, self.alive, horizon, reach, *g.geometry,
+                           g.cell_count, g.cell_start, g.cursor, g.total, g.entries, *self._threat_out)
+            if not g.grow(int(g.total[0])):
+                break
+        return Threats(*(o.copy() for o in self._threat_out))
 
     # -- internals ----------------------------------------------------------------------------
+
+    def _prepare_limbs(self, dt, a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, max_substeps) -> int:
+        """One launch of prepare_limbs (again if the limb grid had to grow); returns the sub-steps."""
+        from crowd_ik.kernels import projectiles as kp
+
+        max_substeps = int(max_substeps)
+        if not 1 <= max_substeps <= kp.MAX_SUBSTEPS:
+            raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
+        grid, out = self.limb_grid, self._substeps_out
+        for _ in range(2):
+            out[0] = 0
+            kp.prepare_limbs(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
+                             owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
+                             self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
+                             grid.total, grid.entries)
+            if not grid.grow(int(grid.total[0])):
+                break
+        return min(max(int(out[0]), 1), max_substeps)
 
     def _characters(self, n_chars: int) -> None:
         import taichi as ti
@@ -349,7 +372,7 @@ class BulletPool:
             self._n_chars = n_chars
 
     def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16,
-             owner_boxes=None) -> Hits:
+             owner_boxes=None, export_to=None) -> Hits:
         from crowd_ik.kernels import projectiles as kp
 
         if isinstance(n_chars, bool) or not isinstance(n_chars, (int, np.integer)) or n_chars < 1:
@@ -381,27 +404,42 @@ class BulletPool:
             owner_boxes = None
         self._characters(n_chars)
         grid = self.limb_grid
-        if step_args is not None:  # only the cells the bullets can reach this step take limbs
-            kp.mark_bullet_cells(self.pos, self.vel, self.alive, step_args[0], self.radius + MARK_MARGIN,
-                                 *grid.geometry, grid.mask)
-            if owner_boxes is not None:
-                kp.reachable_owners(owner_boxes, char_alive, *grid.geometry, grid.mask, self._reachable)
-                char_alive = self._reachable
-        if substeps is None:
-            substeps = substep_count(a0, b0, a1, b1, radii, owner, char_alive, max_substeps)
+        fused = step_args is not None and owner_boxes is not None
+        if fused:
+            substeps = self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes,
+                                           max_substeps)
+            char_alive = self._reachable
+        else:
+            if step_args is not None:  # only the cells the bullets can reach this step take limbs
+                kp.mark_bullet_cells(self.pos, self.vel, self.alive, step_args[0], self.radius + MARK_MARGIN,
+                                     *grid.geometry, grid.mask)
+            if substeps is None:
+                substeps = substep_count(a0, b0, a1, b1, radii, owner, char_alive, max_substeps)
+            grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
+            kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
         self.last_substeps = substeps
-        grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
-        kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
         for j in range(substeps):
+            s = (j + 1) / substeps
+            if fused:
+                dt, gravity, drag, lifetime = step_args
+                last = j == substeps - 1 and export_to is not None
+                out = (self.pos, self.vel, self.alive) if export_to is None else export_to  # written when `last`
+                kp.advance_bullets(self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps, gravity, drag,
+                                   lifetime, self.far, self.radius, a0, b0, a1, b1, s, radii, owner, char_alive,
+                                   *grid.geometry, grid.cell_start, grid.entries, j, substeps, self.hit_key,
+                                   self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
+                                   self.hit_bullet, int(last), *out)
+                continue
             if step_args is not None:
                 dt, gravity, drag, lifetime = step_args
                 kp.integrate_bullets(self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps,
                                      gravity, drag, lifetime, self.far)
-            s = (j + 1) / substeps
             kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
                                char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,
                                self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point)
             kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
+        if export_to is not None and not fused:
+            self.export(*export_to)
         chars = np.flatnonzero(self.hit_bullet >= 0).astype(np.int32)
         bullets = self.hit_bullet[chars]
         if len(chars) == 0:

@@ -921,8 +921,7 @@ class World:
         prev_a, prev_b = self._caps[1 - self._caps_now]
         hits = self.pool.advance(DT, bl.gravity, bl.drag, bl.lifetime, a, b, self._cap_radius, self._owner,
                                  self.alive.astype(np.int32), self.n, prev_a=prev_a, prev_b=prev_b,
-                                 owner_boxes=self._owner_box)
-        self.pool.export(self._bpos, self._bvel, self._balive_i32)
+                                 owner_boxes=self._owner_box, export_to=(self._bpos, self._bvel, self._balive_i32))
         np.not_equal(self._balive_i32, 0, out=self._balive)
         if len(hits.chars):
             chars = hits.chars.astype(np.intp)

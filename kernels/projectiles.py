@@ -12,7 +12,10 @@ Phases (one launch each; `crowd_ik.bullets.BulletPool` runs them in this order):
   reset_hits, collide_bullets,           narrow phase: earliest time of impact per bullet, then one
   apply_hits                             winner per character by an int64 atomic_min on
                                          key = (sub-step, quantised toi) << 32 | bullet id
-  predict_bullets, find_threats          per character, the first bullet that will pass near it
+  threat_pass                            per character, the first bullet that will pass near it
+The game's step launches the fused kernels at the end of the file instead: threat_pass,
+prepare_limbs (marking, reachable characters, sub-step count, limb grid, reset) and one
+advance_bullets per sub-step (integrate, collide, apply, export), built from the same loop bodies.
 
 Determinism: nothing here uses float atomics. The order of capsule ids inside a grid cell depends on
 thread timing, but every result is a minimum under a total order ((toi, capsule id) per bullet,
@@ -35,6 +38,25 @@ _BISECT_ITERS = 26  # toi resolution 2^-26 of the step, finer than the 2^-24 qua
 
 # ---------------------------------------------------------------------------------------------
 # physics
+
+
+@ti.func
+def integrate_bullet(i, pos: ti.template(), vel: ti.template(), age: ti.template(), alive: ti.template(),
+                     prev: ti.template(), dt, gravity, drag, lifetime, far):
+    """integrate_bullets for bullet i (the loop bodies here are functions, so that fused kernels
+    share them: a loop inside a ti.func runs serially, only a kernel's top-level loops are parallel)."""
+    if alive[i] != 0:
+        x = pos[i]
+        prev[i] = x
+        w = vel[i] + vec3(0.0, -gravity, 0.0) * dt
+        v = w / (1.0 + drag * w.norm() * dt)
+        x = x + v * dt
+        pos[i] = x
+        vel[i] = v
+        a = age[i] + dt
+        age[i] = a
+        if a > lifetime or x[1] < -1.0 or x.norm() > far:
+            alive[i] = 0
 
 
 @ti.kernel
@@ -62,18 +84,7 @@ def integrate_bullets(
     on this step's segment.
     """
     for i in range(pos.shape[0]):
-        if alive[i] != 0:
-            x = pos[i]
-            prev[i] = x
-            w = vel[i] + vec3(0.0, -gravity, 0.0) * dt
-            v = w / (1.0 + drag * w.norm() * dt)
-            x = x + v * dt
-            pos[i] = x
-            vel[i] = v
-            a = age[i] + dt
-            age[i] = a
-            if a > lifetime or x[1] < -1.0 or x.norm() > far:
-                alive[i] = 0
+        integrate_bullet(i, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
 
 
 @ti.kernel
@@ -125,6 +136,43 @@ def cell_ok(masked, mask: ti.template(), m):
     return masked == 0 or mask[m] != 0
 
 
+@ti.func
+def count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, masked, mask: ti.template(), cell_count: ti.template()):
+    """cell_count[c] += 1 for every (allowed) cell c the (x, z) box overlaps."""
+    i0, i1 = cell_span(x0, x1, ox, cell, nx)
+    k0, k1 = cell_span(z0, z1, oz, cell, nz)
+    for k in range(k0, k1 + 1):
+        for i in range(i0, i1 + 1):
+            if cell_ok(masked, mask, k * nx + i):
+                ti.atomic_add(cell_count[k * nx + i], 1)
+
+
+@ti.func
+def scan_cells(cell_count: ti.template(), cell_start: ti.template(), cursor: ti.template(), total: ti.template()):
+    """Exclusive prefix sum (serial): cell_start (M+1,), cursor (M,) <- start of each cell; total[0] <- sum."""
+    acc = 0
+    for c in range(cell_count.shape[0]):
+        cell_start[c] = acc
+        cursor[c] = acc
+        acc += cell_count[c]
+    cell_start[cell_count.shape[0]] = acc
+    total[0] = acc
+
+
+@ti.func
+def fill_box(s, x0, z0, x1, z1, ox, oz, cell, nx, nz, masked, mask: ti.template(), cursor: ti.template(),
+             entries: ti.template()):
+    """Write id s into the lists of the (allowed) cells the box overlaps, while entries has room."""
+    i0, i1 = cell_span(x0, x1, ox, cell, nx)
+    k0, k1 = cell_span(z0, z1, oz, cell, nz)
+    for k in range(k0, k1 + 1):
+        for i in range(i0, i1 + 1):
+            if cell_ok(masked, mask, k * nx + i):
+                slot = ti.atomic_add(cursor[k * nx + i], 1)
+                if slot < entries.shape[0]:
+                    entries[slot] = s
+
+
 @ti.kernel
 def build_grid(
     a0: ndarray(dtype=vec3, ndim=1),
@@ -168,31 +216,28 @@ def build_grid(
     for s in range(a0.shape[0]):
         if owner_alive[owner[s]] != 0:
             x0, z0, x1, z1 = swept_box(a0[s], b0[s], a1[s], b1[s], radius[s] + pad)
-            i0, i1 = cell_span(x0, x1, ox, cell, nx)
-            k0, k1 = cell_span(z0, z1, oz, cell, nz)
-            for k in range(k0, k1 + 1):
-                for i in range(i0, i1 + 1):
-                    if cell_ok(masked, mask, k * nx + i):
-                        ti.atomic_add(cell_count[k * nx + i], 1)
+            count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, masked, mask, cell_count)
     for _ in range(1):
-        acc = 0
-        for c in range(cell_count.shape[0]):
-            cell_start[c] = acc
-            cursor[c] = acc
-            acc += cell_count[c]
-        cell_start[cell_count.shape[0]] = acc
-        total[0] = acc
+        scan_cells(cell_count, cell_start, cursor, total)
     for s in range(a0.shape[0]):
         if owner_alive[owner[s]] != 0:
             x0, z0, x1, z1 = swept_box(a0[s], b0[s], a1[s], b1[s], radius[s] + pad)
-            i0, i1 = cell_span(x0, x1, ox, cell, nx)
-            k0, k1 = cell_span(z0, z1, oz, cell, nz)
-            for k in range(k0, k1 + 1):
-                for i in range(i0, i1 + 1):
-                    if cell_ok(masked, mask, k * nx + i):
-                        slot = ti.atomic_add(cursor[k * nx + i], 1)
-                        if slot < entries.shape[0]:
-                            entries[slot] = s
+            fill_box(s, x0, z0, x1, z1, ox, oz, cell, nx, nz, masked, mask, cursor, entries)
+
+
+@ti.func
+def mark_bullet(p, pos: ti.template(), vel: ti.template(), alive: ti.template(), dt, pad, ox, oz, cell, nx, nz,
+                mask: ti.template()):
+    """mark_bullet_cells for bullet p (the mask cleared first)."""
+    if alive[p] != 0:
+        q0 = pos[p]
+        q1 = q0 + vel[p] * dt
+        x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, pad)
+        i0, i1 = cell_span(x0, x1, ox, cell, nx)
+        k0, k1 = cell_span(z0, z1, oz, cell, nz)
+        for k in range(k0, k1 + 1):
+            for i in range(i0, i1 + 1):
+                mask[k * nx + i] = 1
 
 
 @ti.kernel
@@ -219,15 +264,22 @@ def mark_bullet_cells(
     for c in range(mask.shape[0]):
         mask[c] = 0
     for p in range(pos.shape[0]):
-        if alive[p] != 0:
-            q0 = pos[p]
-            q1 = q0 + vel[p] * dt
-            x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, pad)
-            i0, i1 = cell_span(x0, x1, ox, cell, nx)
-            k0, k1 = cell_span(z0, z1, oz, cell, nz)
-            for k in range(k0, k1 + 1):
-                for i in range(i0, i1 + 1):
-                    mask[k * nx + i] = 1
+        mark_bullet(p, pos, vel, alive, dt, pad, ox, oz, cell, nx, nz, mask)
+
+
+@ti.func
+def reachable_owner(n, owner_box: ti.template(), owner_alive: ti.template(), ox, oz, cell, nx, nz,
+                    mask: ti.template()):
+    """1 if owner n is live and its box overlaps a marked cell, else 0 (see reachable_owners)."""
+    hit = 0
+    if owner_alive[n] != 0:
+        i0, i1 = cell_span(owner_box[n, 0], owner_box[n, 2], ox, cell, nx)
+        k0, k1 = cell_span(owner_box[n, 1], owner_box[n, 3], oz, cell, nz)
+        for k in range(k0, k1 + 1):
+            for i in range(i0, i1 + 1):
+                if mask[k * nx + i] != 0:
+                    hit = 1
+    return hit
 
 
 @ti.kernel
@@ -248,15 +300,7 @@ def reachable_owners(
     grown by their radii, so an owner that is not reachable has no segment in a marked cell.
     """
     for n in range(owner_box.shape[0]):
-        hit = 0
-        if owner_alive[n] != 0:
-            i0, i1 = cell_span(owner_box[n, 0], owner_box[n, 2], ox, cell, nx)
-            k0, k1 = cell_span(owner_box[n, 1], owner_box[n, 3], oz, cell, nz)
-            for k in range(k0, k1 + 1):
-                for i in range(i0, i1 + 1):
-                    if mask[k * nx + i] != 0:
-                        hit = 1
-        reachable[n] = hit
+        reachable[n] = reachable_owner(n, owner_box, owner_alive, ox, oz, cell, nx, nz, mask)
 
 # ---------------------------------------------------------------------------------------------
 # narrow phase
@@ -349,6 +393,46 @@ def reset_hits(
         bullet_char[p] = -1
 
 
+@ti.func
+def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.template(), bullet_radius,
+                   a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), s, radius: ti.template(),
+                   owner: ti.template(), char_alive: ti.template(), ox, oz, cell, nx, nz, cell_start: ti.template(),
+                   entries: ti.template(), substep, n_substeps, hit_key: ti.template(), bullet_key: ti.template(),
+                   bullet_char: ti.template(), bullet_toi: ti.template(), bullet_point: ti.template()):
+    """collide_bullets for bullet p."""
+    earlier = ti.i64(substep) << (TOI_BITS + 32)  # keys of hits on earlier sub-steps are below this
+    if alive[p] != 0:
+        q0 = prev[p]
+        q1 = pos[p]
+        x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, bullet_radius)
+        i0, i1 = cell_span(x0, x1, ox, cell, nx)
+        k0, k1 = cell_span(z0, z1, oz, cell, nz)
+        best_t = 2.0
+        best_c = -1
+        for k in range(k0, k1 + 1):
+            for i in range(i0, i1 + 1):
+                m = k * nx + i
+                for e in range(cell_start[m], cell_start[m + 1]):
+                    c = entries[e]
+                    o = owner[c]
+                    if char_alive[o] != 0 and hit_key[o] >= earlier:
+                        a = (1.0 - s) * a0[c] + s * a1[c]
+                        b = (1.0 - s) * b0[c] + s * b1[c]
+                        t = sweep_sphere_capsule(q0, q1, a, b, bullet_radius + radius[c])
+                        if t >= 0.0 and (t < best_t or (t == best_t and c < best_c)):
+                            best_t = t
+                            best_c = c
+        if best_c >= 0:
+            o = owner[best_c]
+            qt = ti.min(ti.cast(best_t * (1 << TOI_BITS), ti.i64), (1 << TOI_BITS) - 1)
+            key = (((ti.i64(substep) << TOI_BITS) + qt) << 32) | ti.i64(p)
+            bullet_key[p] = key
+            bullet_char[p] = o
+            bullet_toi[p] = (substep + best_t) / n_substeps
+            bullet_point[p] = q0 + best_t * (q1 - q0)
+            ti.atomic_min(hit_key[o], key)
+
+
 @ti.kernel
 def collide_bullets(
     prev: ndarray(dtype=vec3, ndim=1),
@@ -392,38 +476,21 @@ def collide_bullets(
     time of impact as a fraction of the whole step, bullet_point[p] <- where, bullet_key[p] <- key,
     and atomic_min(hit_key[character], key), key = ((substep << 24) + quantised toi) << 32 | p.
     """
-    earlier = ti.i64(substep) << (TOI_BITS + 32)  # keys of hits on earlier sub-steps are below this
     for p in range(pos.shape[0]):
-        if alive[p] != 0:
-            q0 = prev[p]
-            q1 = pos[p]
-            x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, bullet_radius)
-            i0, i1 = cell_span(x0, x1, ox, cell, nx)
-            k0, k1 = cell_span(z0, z1, oz, cell, nz)
-            best_t = 2.0
-            best_c = -1
-            for k in range(k0, k1 + 1):
-                for i in range(i0, i1 + 1):
-                    m = k * nx + i
-                    for e in range(cell_start[m], cell_start[m + 1]):
-                        c = entries[e]
-                        o = owner[c]
-                        if char_alive[o] != 0 and hit_key[o] >= earlier:
-                            a = (1.0 - s) * a0[c] + s * a1[c]
-                            b = (1.0 - s) * b0[c] + s * b1[c]
-                            t = sweep_sphere_capsule(q0, q1, a, b, bullet_radius + radius[c])
-                            if t >= 0.0 and (t < best_t or (t == best_t and c < best_c)):
-                                best_t = t
-                                best_c = c
-            if best_c >= 0:
-                o = owner[best_c]
-                qt = ti.min(ti.cast(best_t * (1 << TOI_BITS), ti.i64), (1 << TOI_BITS) - 1)
-                key = (((ti.i64(substep) << TOI_BITS) + qt) << 32) | ti.i64(p)
-                bullet_key[p] = key
-                bullet_char[p] = o
-                bullet_toi[p] = (substep + best_t) / n_substeps
-                bullet_point[p] = q0 + best_t * (q1 - q0)
-                ti.atomic_min(hit_key[o], key)
+        collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, s, radius, owner, char_alive, ox, oz, cell,
+                       nx, nz, cell_start, entries, substep, n_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
+                       bullet_point)
+
+
+@ti.func
+def apply_hit(p, alive: ti.template(), bullet_char: ti.template(), bullet_key: ti.template(), hit_key: ti.template(),
+              hit_bullet: ti.template()):
+    """apply_hits for bullet p."""
+    if alive[p] != 0 and bullet_char[p] >= 0:
+        alive[p] = 0
+        o = bullet_char[p]
+        if hit_key[o] == bullet_key[p]:
+            hit_bullet[o] = p
 
 
 @ti.kernel
@@ -437,11 +504,18 @@ def apply_hits(
     """Every live bullet that struck a limb on this sub-step dies (the body stops it); the one whose
     key won its character's atomic_min is that character's hit: hit_bullet[character] <- bullet."""
     for p in range(alive.shape[0]):
-        if alive[p] != 0 and bullet_char[p] >= 0:
-            alive[p] = 0
-            o = bullet_char[p]
-            if hit_key[o] == bullet_key[p]:
-                hit_bullet[o] = p
+        apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)
+
+
+@ti.func
+def limb_substeps(c, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(),
+                  radius: ti.template(), owner: ti.template(), char_alive: ti.template(), out: ti.template()):
+    """count_substeps for limb c."""
+    if char_alive[owner[c]] != 0:
+        move = ti.max((a1[c] - a0[c]).norm(), (b1[c] - b0[c]).norm())
+        k = ti.cast(ti.ceil(ti.min(move / radius[c], 1048576.0)), ti.i32)
+        if k > out[0]:
+            ti.atomic_max(out[0], k)
 
 
 @ti.kernel
@@ -463,96 +537,63 @@ def count_substeps(
     costs an extra atomic): hundreds of thousands of limbs then do not queue on one address.
     """
     for c in range(a0.shape[0]):
-        if char_alive[owner[c]] != 0:
-            move = ti.max((a1[c] - a0[c]).norm(), (b1[c] - b0[c]).norm())
-            k = ti.cast(ti.ceil(ti.min(move / radius[c], 1048576.0)), ti.i32)
-            if k > out[0]:
-                ti.atomic_max(out[0], k)
+        limb_substeps(c, a0, b0, a1, b1, radius, owner, char_alive, out)
 
 
 # ---------------------------------------------------------------------------------------------
 # threats
 
 
-@ti.kernel
-def predict_bullets(
-    pos: ndarray(dtype=vec3, ndim=1),
-    vel: ndarray(dtype=vec3, ndim=1),
-    horizon: float,
-    end: ndarray(dtype=vec3, ndim=1),
-):
-    """end (P, 3) <- pos + vel * horizon: the straight-line path a bullet covers in the horizon."""
-    for p in range(pos.shape[0]):
-        end[p] = pos[p] + vel[p] * horizon
-
-
-@ti.kernel
-def find_threats(
-    points: ndarray(dtype=vec3, ndim=1),
-    char_alive: ndarray(dtype=ti.i32, ndim=1),
-    pos: ndarray(dtype=vec3, ndim=1),
-    vel: ndarray(dtype=vec3, ndim=1),
-    alive: ndarray(dtype=ti.i32, ndim=1),
-    horizon: float,
-    reach: float,
-    ox: float,
-    oz: float,
-    cell: float,
-    nx: ti.i32,
-    nz: ti.i32,
-    cell_start: ndarray(dtype=ti.i32, ndim=1),
-    entries: ndarray(dtype=ti.i32, ndim=1),
-    threat_bullet: ndarray(dtype=ti.i32, ndim=1),
-    threat_time: ndarray(ndim=1),
-    threat_miss: ndarray(ndim=1),
-    threat_point: ndarray(dtype=vec3, ndim=1),
-    threat_dir: ndarray(dtype=vec3, ndim=1),
-):
-    """Per live character, the approaching bullet that first comes within `reach` of points[n] (N, 3).
+@ti.func
+def find_threat(n, points: ti.template(), char_alive: ti.template(), pos: ti.template(), vel: ti.template(),
+                alive: ti.template(), horizon, reach, ox, oz, cell, nx, nz, cell_start: ti.template(),
+                entries: ti.template(), threat_bullet: ti.template(), threat_time: ti.template(),
+                threat_miss: ti.template(), threat_point: ti.template(), threat_dir: ti.template()):
+    """For character n (if live), the approaching bullet that first comes within `reach` of points[n].
 
     Bullets fly straight (gravity is ignored over the short horizon; the game re-asks every step).
     For bullet p: t* = clamp((point - pos) . vel / |vel|^2, 0, horizon), miss = |pos + vel t* - point|;
     a threat has (point - pos) . vel > 0 and miss <= reach. The one with the smallest (t*, p) wins.
-    Outputs (N,): threat_bullet (-1 when none), threat_time t* s, threat_miss m (both -1 when none),
-    threat_point (N, 3) the bullet's position at t*, threat_dir (N, 3) its unit direction (0 when none).
+    Outputs at n of (N,) arrays: threat_bullet (-1 when none), threat_time t* s, threat_miss m (both -1
+    when none), threat_point (N, 3) the bullet's position at t*, threat_dir (N, 3) its unit direction
+    (0 when none).
     The grid holds the bullets' segments pos -> pos + vel horizon grown by `reach`, so a character
     reads only the one cell its point falls in.
     """
-    for n in range(points.shape[0]):
-        best_t = horizon + 1.0
-        best_p = -1
-        best_m = 0.0
-        c = points[n]
-        if char_alive[n] != 0:
-            i, _ = cell_span(c[0], c[0], ox, cell, nx)
-            k, _ = cell_span(c[2], c[2], oz, cell, nz)
-            m = k * nx + i
-            for e in range(cell_start[m], cell_start[m + 1]):
-                p = entries[e]
-                if alive[p] != 0:
-                    v = vel[p]
-                    rel = c - pos[p]
-                    vv = v.dot(v)
-                    ahead = rel.dot(v)
-                    if vv > 0.0 and ahead > 0.0:
-                        t = ti.min(ahead / vv, horizon)
-                        miss = (rel - t * v).norm()
-                        if miss <= reach and (t < best_t or (t == best_t and p < best_p)):
-                            best_t = t
-                            best_p = p
-                            best_m = miss
-        threat_bullet[n] = best_p
-        if best_p >= 0:
-            v = vel[best_p]
-            threat_time[n] = best_t
-            threat_miss[n] = best_m
-            threat_point[n] = pos[best_p] + best_t * v
-            threat_dir[n] = v / v.norm()
-        else:
-            threat_time[n] = -1.0
-            threat_miss[n] = -1.0
-            threat_point[n] = vec3(0.0, 0.0, 0.0)
-            threat_dir[n] = vec3(0.0, 0.0, 0.0)
+    best_t = horizon + 1.0
+    best_p = -1
+    best_m = 0.0
+    c = points[n]
+    if char_alive[n] != 0:
+        i, _ = cell_span(c[0], c[0], ox, cell, nx)
+        k, _ = cell_span(c[2], c[2], oz, cell, nz)
+        m = k * nx + i
+        for e in range(cell_start[m], cell_start[m + 1]):
+            p = entries[e]
+            if alive[p] != 0:
+                v = vel[p]
+                rel = c - pos[p]
+                vv = v.dot(v)
+                ahead = rel.dot(v)
+                if vv > 0.0 and ahead > 0.0:
+                    t = ti.min(ahead / vv, horizon)
+                    miss = (rel - t * v).norm()
+                    if miss <= reach and (t < best_t or (t == best_t and p < best_p)):
+                        best_t = t
+                        best_p = p
+                        best_m = miss
+    threat_bullet[n] = best_p
+    if best_p >= 0:
+        v = vel[best_p]
+        threat_time[n] = best_t
+        threat_miss[n] = best_m
+        threat_point[n] = pos[best_p] + best_t * v
+        threat_dir[n] = v / v.norm()
+    else:
+        threat_time[n] = -1.0
+        threat_miss[n] = -1.0
+        threat_point[n] = vec3(0.0, 0.0, 0.0)
+        threat_dir[n] = vec3(0.0, 0.0, 0.0)
 
 
 @ti.kernel
@@ -570,3 +611,176 @@ def export_bullets(
         pos_out[p] = pos[p]
         vel_out[p] = vel[p]
         alive_out[p] = alive[p]
+
+
+# ---------------------------------------------------------------------------------------------
+# fused phases: the same loop bodies as above, several top-level loops (run one after the other,
+# each in parallel) per launch. A launch costs ~0.05-0.3 ms on the CPU backend whatever its size,
+# which is most of a small scene's step.
+
+
+@ti.kernel
+def threat_pass(
+    points: ndarray(dtype=vec3, ndim=1),
+    char_alive: ndarray(dtype=ti.i32, ndim=1),
+    pos: ndarray(dtype=vec3, ndim=1),
+    vel: ndarray(dtype=vec3, ndim=1),
+    alive: ndarray(dtype=ti.i32, ndim=1),
+    horizon: float,
+    reach: float,
+    ox: float,
+    oz: float,
+    cell: float,
+    nx: ti.i32,
+    nz: ti.i32,
+    cell_count: ndarray(dtype=ti.i32, ndim=1),
+    cell_start: ndarray(dtype=ti.i32, ndim=1),
+    cursor: ndarray(dtype=ti.i32, ndim=1),
+    total: ndarray(dtype=ti.i32, ndim=1),
+    entries: ndarray(dtype=ti.i32, ndim=1),
+    threat_bullet: ndarray(dtype=ti.i32, ndim=1),
+    threat_time: ndarray(ndim=1),
+    threat_miss: ndarray(ndim=1),
+    threat_point: ndarray(dtype=vec3, ndim=1),
+    threat_dir: ndarray(dtype=vec3, ndim=1),
+):
+    """predict_bullets + build_grid of the live bullets' paths pos -> pos + vel horizon grown by
+    reach (segment id = slot) + find_threats, in one launch. Valid when total[0] <= entries.shape[0]
+    afterwards; otherwise the caller grows entries and launches again."""
+    for c in range(cell_count.shape[0]):
+        cell_count[c] = 0
+    for p in range(pos.shape[0]):
+        if alive[p] != 0:
+            q0 = pos[p]
+            q1 = q0 + vel[p] * horizon
+            x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, reach)
+            count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 0, cell_count, cell_count)  # unmasked: no mask
+    for _ in range(1):
+        scan_cells(cell_count, cell_start, cursor, total)
+    for p in range(pos.shape[0]):
+        if alive[p] != 0:
+            q0 = pos[p]
+            q1 = q0 + vel[p] * horizon
+            x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, reach)
+            fill_box(p, x0, z0, x1, z1, ox, oz, cell, nx, nz, 0, cell_count, cursor, entries)
+    for n in range(points.shape[0]):
+        if total[0] <= entries.shape[0]:  # else the grid overflowed: the caller launches again
+            find_threat(n, points, char_alive, pos, vel, alive, horizon, reach, ox, oz, cell, nx, nz, cell_start,
+                        entries, threat_bullet, threat_time, threat_miss, threat_point, threat_dir)
+
+
+@ti.kernel
+def prepare_limbs(
+    pos: ndarray(dtype=vec3, ndim=1),
+    vel: ndarray(dtype=vec3, ndim=1),
+    alive: ndarray(dtype=ti.i32, ndim=1),
+    dt: float,
+    pad: float,
+    ox: float,
+    oz: float,
+    cell: float,
+    nx: ti.i32,
+    nz: ti.i32,
+    mask: ndarray(dtype=ti.i32, ndim=1),
+    owner_box: ndarray(ndim=2),
+    char_alive: ndarray(dtype=ti.i32, ndim=1),
+    reachable: ndarray(dtype=ti.i32, ndim=1),
+    a0: ndarray(dtype=vec3, ndim=1),
+    b0: ndarray(dtype=vec3, ndim=1),
+    a1: ndarray(dtype=vec3, ndim=1),
+    b1: ndarray(dtype=vec3, ndim=1),
+    radius: ndarray(ndim=1),
+    owner: ndarray(dtype=ti.i32, ndim=1),
+    substeps: ndarray(dtype=ti.i32, ndim=1),
+    hit_key: ndarray(dtype=ti.i64, ndim=1),
+    hit_bullet: ndarray(dtype=ti.i32, ndim=1),
+    bullet_char: ndarray(dtype=ti.i32, ndim=1),
+    cell_count: ndarray(dtype=ti.i32, ndim=1),
+    cell_start: ndarray(dtype=ti.i32, ndim=1),
+    cursor: ndarray(dtype=ti.i32, ndim=1),
+    total: ndarray(dtype=ti.i32, ndim=1),
+    entries: ndarray(dtype=ti.i32, ndim=1),
+):
+    """Everything a step's collisions need before the bullets move, in one launch:
+    mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
+    count_substeps over the reachable owners' limbs (into substeps[0], zeroed by the caller) +
+    build_grid of those limbs into the marked cells + reset_hits. The grid is valid when total[0]
+    <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again."""
+    for c in range(mask.shape[0]):
+        mask[c] = 0
+        cell_count[c] = 0
+    for p in range(pos.shape[0]):
+        mark_bullet(p, pos, vel, alive, dt, pad, ox, oz, cell, nx, nz, mask)
+        bullet_char[p] = -1
+    for n in range(owner_box.shape[0]):
+        reachable[n] = reachable_owner(n, owner_box, char_alive, ox, oz, cell, nx, nz, mask)
+        hit_key[n] = ti.i64(NO_HIT)
+        hit_bullet[n] = -1
+    for c in range(a0.shape[0]):
+        if reachable[owner[c]] != 0:
+            limb_substeps(c, a0, b0, a1, b1, radius, owner, reachable, substeps)
+            x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
+            count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cell_count)
+    for _ in range(1):
+        scan_cells(cell_count, cell_start, cursor, total)
+    for c in range(a0.shape[0]):
+        if reachable[owner[c]] != 0:
+            x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
+            fill_box(c, x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cursor, entries)
+
+
+@ti.kernel
+def advance_bullets(
+    pos: ndarray(dtype=vec3, ndim=1),
+    vel: ndarray(dtype=vec3, ndim=1),
+    age: ndarray(ndim=1),
+    alive: ndarray(dtype=ti.i32, ndim=1),
+    prev: ndarray(dtype=vec3, ndim=1),
+    dt: float,
+    gravity: float,
+    drag: float,
+    lifetime: float,
+    far: float,
+    bullet_radius: float,
+    a0: ndarray(dtype=vec3, ndim=1),
+    b0: ndarray(dtype=vec3, ndim=1),
+    a1: ndarray(dtype=vec3, ndim=1),
+    b1: ndarray(dtype=vec3, ndim=1),
+    s: float,
+    radius: ndarray(ndim=1),
+    owner: ndarray(dtype=ti.i32, ndim=1),
+    char_alive: ndarray(dtype=ti.i32, ndim=1),
+    ox: float,
+    oz: float,
+    cell: float,
+    nx: ti.i32,
+    nz: ti.i32,
+    cell_start: ndarray(dtype=ti.i32, ndim=1),
+    entries: ndarray(dtype=ti.i32, ndim=1),
+    substep: ti.i32,
+    n_substeps: ti.i32,
+    hit_key: ndarray(dtype=ti.i64, ndim=1),
+    bullet_key: ndarray(dtype=ti.i64, ndim=1),
+    bullet_char: ndarray(dtype=ti.i32, ndim=1),
+    bullet_toi: ndarray(ndim=1),
+    bullet_point: ndarray(dtype=vec3, ndim=1),
+    hit_bullet: ndarray(dtype=ti.i32, ndim=1),
+    export: ti.i32,
+    pos_out: ndarray(dtype=vec3, ndim=1),
+    vel_out: ndarray(dtype=vec3, ndim=1),
+    alive_out: ndarray(dtype=ti.i32, ndim=1),
+):
+    """One sub-step in one launch: integrate_bullets (dt) then collide_bullets for each bullet (a
+    bullet's collision reads only its own new segment), then apply_hits; with export != 0 also
+    export_bullets into pos_out, vel_out, alive_out."""
+    for p in range(pos.shape[0]):
+        integrate_bullet(p, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
+        collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, s, radius, owner, char_alive, ox, oz, cell,
+                       nx, nz, cell_start, entries, substep, n_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
+                       bullet_point)
+    for p in range(pos.shape[0]):
+        apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)
+        if export != 0:
+            pos_out[p] = pos[p]
+            vel_out[p] = vel[p]
+            alive_out[p] = alive[p]

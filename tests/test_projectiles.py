@@ -415,9 +415,12 @@ def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
     for use_boxes in (False, True):
         pool = BulletPool(len(start), bounds=(-50, -50, 50, 50))
         pool.spawn(start, vel)
+        out = np.zeros((len(start), 3), np.float32), np.zeros((len(start), 3), np.float32), np.zeros(len(start), np.int32)
         hits = pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, owner, char_alive, n + 1, prev_a=prev_a,
-                            prev_b=prev_b, max_substeps=64, owner_boxes=boxes if use_boxes else None)
+                            prev_b=prev_b, max_substeps=64, owner_boxes=boxes if use_boxes else None, export_to=out)
         results.append((pool.last_substeps, hits, pool.struck()))
+        np.testing.assert_array_equal(out[0], pool.positions())  # exported at the end of the step
+        np.testing.assert_array_equal(out[2] != 0, pool.alive_mask())
     assert results[0][0] == 60  # ceil(3 m / 0.05 m): the far limb sub-steps every bullet
     assert results[1][0] == 1  # ... unless the pool knows no bullet can reach it
     # the near limbs did not move: the same winners either way (toi up to the gravity integration of
@@ -428,6 +431,23 @@ def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
     np.testing.assert_array_equal(h0.bullets, h1.bullets)
     np.testing.assert_array_equal(s0[h0.bullets], s1[h1.bullets])
     np.testing.assert_allclose(h0.toi, h1.toi, atol=1e-3)
+
+
+def test_fused_advance_equals_the_phase_kernels():
+    # with owner boxes advance runs prepare_limbs + advance_bullets; without, the separate phase kernels
+    start, end, a, b, radius, owner, char_alive = _scene(16, p=150)
+    vel = _f32((end - start) * 60.0)
+    boxes = _owner_boxes(a, b, a, b, radius, owner, len(char_alive))
+    runs = []
+    for use_boxes in (False, True):
+        pool = BulletPool(len(start), bounds=(-5, -5, 5, 5), capsule_capacity=4)  # the limb grid must grow
+        pool.spawn(start, vel)
+        hits = pool.advance(DT, 9.81, 0.01, 3.0, a, b, radius, owner, char_alive, len(char_alive),
+                            owner_boxes=boxes if use_boxes else None)
+        runs.append((hits, pool.struck(), pool.positions(), pool.alive_mask()))
+    assert len(runs[0][0].chars) > 5
+    for x, y in zip(runs[0][0] + runs[0][1:], runs[1][0] + runs[1][1:]):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_threats_match_twin():
