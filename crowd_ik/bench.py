@@ -412,6 +412,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     owner = ndarray(np.repeat(np.arange(n, dtype=np.int32), B), ti.i32)
     caps = [tuple(ndarray(np.zeros((n * B, 3), np.float32), ti.math.vec3) for _ in range(2)) for _ in range(2)]
     box = ndarray(np.zeros((n, 4), np.float32), ti.f32)
+    pose_box = [ndarray(np.zeros((n, 4), np.float32), ti.f32) for _ in range(2)]
     joints = [np.zeros((n, J, 3), np.float32) for _ in range(2)]
     alive = np.ones(n, np.int32)
     lo, hi = wl.roots.min(0) - 3.0, wl.roots.max(0) + 3.0
@@ -424,7 +425,8 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     velocities = (25.0 * np.stack([np.cos(heading), np.zeros(pool_size), np.sin(heading)], axis=1)).astype(np.float32)
 
     def capsules(now: int) -> None:
-        gk.limb_capsules(crowd.world_pos, bone_parent, bone_radius, *caps[1 - now], *caps[now], joints[now], box)
+        gk.limb_capsules(crowd.world_pos, bone_parent, bone_radius, pose_box[1 - now], *caps[now], joints[now],
+                         pose_box[now], box)
 
     offsets = _smooth_offsets(n, E, SEED + 2)
     feet = np.array([name.startswith("foot") for name in rig.effector_names])
