@@ -2,14 +2,11 @@
 for frame), mouse/keys -> input, the no-display refusal, and the window under Xvfb + xdotool."""
 
 import json
-import os
-import shutil
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
+from xwindow import crowd_ik_window, xdo
 
 from crowd_ik import game
 from crowd_ik.cli import main
@@ -259,60 +256,30 @@ def test_flag_combinations_exit_2(tiny, tmp_path, monkeypatch, capsys, argv, mes
     assert list(tmp_path.iterdir()) == []
 
 
-def _xdo(display: str, *args: str) -> str:
-    out = subprocess.run(["xdotool", *args], env=dict(os.environ, DISPLAY=display), capture_output=True,
-                         text=True, timeout=20)
-    return out.stdout
-
 
 @pytest.mark.gui
 def test_live_window_w_key_moves_the_player_and_a_click_fires(tiny, tmp_path):
-    if not (shutil.which("Xvfb") and shutil.which("xdotool")):
-        pytest.skip("needs Xvfb and xdotool (apt-get install xvfb xdotool)")
-    r, w = os.pipe()
-    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(w), "-screen", "0", "640x480x24", "-nolisten", "tcp"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    app = None
-    try:
-        with os.fdopen(r) as fh:
-            display = ":" + fh.readline().strip()
-        env = dict(os.environ, DISPLAY=display)
-        rec, stats = tmp_path / "rec.csv", tmp_path / "live.json"
-        app = subprocess.Popen([sys.executable, "-m", "crowd_ik", "play", str(tiny), "--live", "--size", "160x96",
-                                "--record", str(rec), "--stats", str(stats)],
-                               cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        win = ""
-        deadline = time.monotonic() + 90
-        while not win and time.monotonic() < deadline and app.poll() is None:
-            time.sleep(0.3)
-            win = _xdo(display, "search", "--name", "crowd-ik play").split("\n")[0].strip()
-        assert win, f"no window appeared: {app.poll()} {app.stderr.read() if app.poll() is not None else ''}"
+    rec, stats = tmp_path / "rec.csv", tmp_path / "live.json"
+    argv = ["play", str(tiny), "--live", "--size", "160x96", "--record", str(rec), "--stats", str(stats)]
+    with crowd_ik_window(argv, "crowd-ik play", tmp_path) as (app, display, win):
+        xdo(display, "mousemove", "--window", win, "120", "30")
+        xdo(display, "keydown", "--window", win, "w")
         time.sleep(1.5)
-        _xdo(display, "mousemove", "--window", win, "120", "30")
-        _xdo(display, "keydown", "--window", win, "w")
-        time.sleep(1.5)
-        _xdo(display, "keyup", "--window", win, "w")
+        xdo(display, "keyup", "--window", win, "w")
         time.sleep(0.3)
-        _xdo(display, "click", "--window", win, "1")
+        xdo(display, "click", "--window", win, "1")
         time.sleep(0.5)
-        _xdo(display, "key", "--window", win, "Escape")
+        xdo(display, "key", "--window", win, "Escape")
         out, err = app.communicate(timeout=60)
-        assert app.returncode == 0, err
-        assert "live:" in out and str(rec) in out
-        log = load_inputs(rec)
-        moving = [inp for inp in log.inputs if inp.move == (0.0, -1.0)]
-        assert len(moving) >= 5 and log.inputs[-1].move == (0.0, 0.0)
-        assert sum(inp.fire for inp in log.inputs) == 1
-        assert log.settings["size"] == "160x96"
-        info = json.loads(stats.read_text())
-        assert info["frames"] == len(log) and info["player_shots"] == 1
-        start, end = np.array(info["player_start"]), np.array(info["player_end"])
-        assert end[2] - start[2] == pytest.approx(-len(moving) * 1.5 / 24, abs=1e-4)
-        assert abs(end[0] - start[0]) < 1e-6
-    finally:
-        if app is not None and app.poll() is None:
-            app.kill()
-            app.wait()
-        xvfb.terminate()
-        xvfb.wait(timeout=10)
+    assert app.returncode == 0, err
+    assert "live:" in out and str(rec) in out
+    log = load_inputs(rec)
+    moving = [inp for inp in log.inputs if inp.move == (0.0, -1.0)]
+    assert len(moving) >= 5 and log.inputs[-1].move == (0.0, 0.0)
+    assert sum(inp.fire for inp in log.inputs) == 1
+    assert log.settings["size"] == "160x96"
+    info = json.loads(stats.read_text())
+    assert info["frames"] == len(log) and info["player_shots"] == 1
+    start, end = np.array(info["player_start"]), np.array(info["player_end"])
+    assert end[2] - start[2] == pytest.approx(-len(moving) * 1.5 / 24, abs=1e-4)
+    assert abs(end[0] - start[0]) < 1e-6

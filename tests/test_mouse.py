@@ -6,15 +6,12 @@ tested in tests/test_ease.py; here the keyframe replay is checked end to end.
 """
 
 import math
-import os
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from xwindow import crowd_ik_window, xdo
 
 from crowd_ik import planar
 from crowd_ik.cli import main
@@ -285,58 +282,29 @@ def test_humanoid_drag_puts_the_effector_on_the_cursor_ray(method):
 # the live window, driven under Xvfb with xdotool
 
 
-def _xdo(display: str, *args: str) -> str:
-    out = subprocess.run(["xdotool", *args], env=dict(os.environ, DISPLAY=display), capture_output=True,
-                         text=True, timeout=20)
-    return out.stdout
-
 
 @pytest.mark.gui
 def test_live_window_drag_keys_and_recording(tmp_path):
-    if not (shutil.which("Xvfb") and shutil.which("xdotool")):
-        pytest.skip("needs Xvfb and xdotool (apt-get install xvfb xdotool)")
-    r, w = os.pipe()
-    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(w), "-screen", "0", "640x480x24", "-nolisten", "tcp"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    app = None
-    try:
-        with os.fdopen(r) as fh:
-            display = ":" + fh.readline().strip()
-        env = dict(os.environ, DISPLAY=display)
-        app = subprocess.Popen([sys.executable, "-m", "crowd_ik", "mouse", "--bones", "4", "--size", "320x320"],
-                               cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        win = ""
-        deadline = time.monotonic() + 90
-        while not win and time.monotonic() < deadline and app.poll() is None:
-            time.sleep(0.3)
-            win = _xdo(display, "search", "--name", "crowd-ik mouse").split("\n")[0].strip()
-        assert win, f"no window appeared: {app.poll()} {app.stderr.read() if app.poll() is not None else ''}"
-        time.sleep(1.5)
-        _xdo(display, "key", "--window", win, "c")  # start recording
-        _xdo(display, "mousemove", "--window", win, "250", "100")
+    with crowd_ik_window(["mouse", "--bones", "4", "--size", "320x320"], "crowd-ik mouse", tmp_path) as (app, display,
+                                                                                                      win):
+        xdo(display, "key", "--window", win, "c")  # start recording
+        xdo(display, "mousemove", "--window", win, "250", "100")
         time.sleep(0.2)
-        _xdo(display, "mousedown", "1")
+        xdo(display, "mousedown", "1")
         for i in range(1, 11):
-            _xdo(display, "mousemove", "--window", win, str(250 - 4 * i), str(100 - 3 * i))
+            xdo(display, "mousemove", "--window", win, str(250 - 4 * i), str(100 - 3 * i))
             time.sleep(0.05)
         time.sleep(0.3)
-        _xdo(display, "mouseup", "1")
+        xdo(display, "mouseup", "1")
         for key in ("2", "l", "c"):  # dls, limits on, stop recording
-            _xdo(display, "key", "--window", win, key)
+            xdo(display, "key", "--window", win, key)
             time.sleep(0.3)
-        _xdo(display, "key", "--window", win, "Escape")
+        xdo(display, "key", "--window", win, "Escape")
         out, err = app.communicate(timeout=60)
-        assert app.returncode == 0, err
-        assert "recorded" in out and "path_001.csv" in out
-        t, xy = load_path(tmp_path / "path_001.csv")
-        assert len(t) >= 5 and np.all(np.diff(t) > 0)
-        view = View(4, 320, 320)
-        np.testing.assert_allclose(xy[0], planar.chain(rest_pose(4)), atol=1e-4)  # recording began before the drag
-        np.testing.assert_allclose(xy[-1], view.to_world(210, 70), atol=0.02)  # and ends where the drag let go
-    finally:
-        if app is not None and app.poll() is None:
-            app.kill()
-            app.wait()
-        xvfb.terminate()
-        xvfb.wait(timeout=10)
+    assert app.returncode == 0, err
+    assert "recorded" in out and "path_001.csv" in out
+    t, xy = load_path(tmp_path / "path_001.csv")
+    assert len(t) >= 5 and np.all(np.diff(t) > 0)
+    view = View(4, 320, 320)
+    np.testing.assert_allclose(xy[0], planar.chain(rest_pose(4)), atol=1e-4)  # recording began before the drag
+    np.testing.assert_allclose(xy[-1], view.to_world(210, 70), atol=0.02)  # and ends where the drag let go
