@@ -306,8 +306,8 @@ class BulletPool:
         Sub-step j tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
         number used is left in self.last_substeps. owner_boxes (n_chars, 4) float32, optional:
         x_min, z_min, x_max, z_max of each character's limbs in both poses grown by their radii;
-        characters whose box no bullet can reach this step are left out (of sub-step counting too);
-        the step then takes 1 + k launches (prepare_limbs, advance_bullets per sub-step). export_to:
+        characters whose box no bullet can reach this step are left out (of sub-step counting too),
+        and the preparation is one launch (prepare_limbs); each sub-step is one launch (advance_bullets). export_to:
         (pos, vel, alive) host arrays to receive export() at the end of the step, or None.
         """
         args = (_positive("dt", dt), _non_negative("gravity", gravity), _non_negative("drag", drag),
@@ -420,7 +420,7 @@ class BulletPool:
         self.last_substeps = substeps
         for j in range(substeps):
             s = (j + 1) / substeps
-            if fused:
+            if step_args is not None:  # integrate + collide, apply (+ export): one launch per sub-step
                 dt, gravity, drag, lifetime = step_args
                 last = j == substeps - 1 and export_to is not None
                 out = (self.pos, self.vel, self.alive) if export_to is None else export_to  # written when `last`
@@ -430,15 +430,11 @@ class BulletPool:
                                    self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
                                    self.hit_bullet, int(last), *out)
                 continue
-            if step_args is not None:
-                dt, gravity, drag, lifetime = step_args
-                kp.integrate_bullets(self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps,
-                                     gravity, drag, lifetime, self.far)
             kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
                                char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,
                                self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point)
             kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
-        if export_to is not None and not fused:
+        if export_to is not None and step_args is None:
             self.export(*export_to)
         chars = np.flatnonzero(self.hit_bullet >= 0).astype(np.int32)
         bullets = self.hit_bullet[chars]

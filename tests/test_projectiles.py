@@ -415,7 +415,8 @@ def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
     for use_boxes in (False, True):
         pool = BulletPool(len(start), bounds=(-50, -50, 50, 50))
         pool.spawn(start, vel)
-        out = np.zeros((len(start), 3), np.float32), np.zeros((len(start), 3), np.float32), np.zeros(len(start), np.int32)
+        P = len(start)
+        out = np.zeros((P, 3), np.float32), np.zeros((P, 3), np.float32), np.zeros(P, np.int32)
         hits = pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, owner, char_alive, n + 1, prev_a=prev_a,
                             prev_b=prev_b, max_substeps=64, owner_boxes=boxes if use_boxes else None, export_to=out)
         results.append((pool.last_substeps, hits, pool.struck()))
@@ -434,7 +435,7 @@ def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
 
 
 def test_fused_advance_equals_the_phase_kernels():
-    # with owner boxes advance runs prepare_limbs + advance_bullets; without, the separate phase kernels
+    # with owner boxes advance prepares in one launch (prepare_limbs); without, with the separate phase kernels
     start, end, a, b, radius, owner, char_alive = _scene(16, p=150)
     vel = _f32((end - start) * 60.0)
     boxes = _owner_boxes(a, b, a, b, radius, owner, len(char_alive))
