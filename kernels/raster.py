@@ -28,6 +28,10 @@ Why this shape (see also crowd_ik/render.py):
   or the sky gradient. The ground also hides the parts of capsules below y = 0. Everything about
   the ground and sky but the shadows depends on the camera alone, so `shade_background` computes
   it once per camera and a ground pixel costs one multiply-add per channel.
+- Dirty tiles: `raster_capsules` and `splat_shadows` flag the TILE x TILE pixel tiles their screen
+  boxes touch; `clear_buffers` and `shade_frame` work only on tiles drawn on this frame or the last,
+  so the rest of a persistent frame buffer keeps its background (a crowd seen from afar covers a
+  sixth of the tiles).
 
 Camera, packed in a (16,) float32 array `cam` (see `crowd_ik.render.Camera.packed`):
 eye [0:3], right [3:6], up [6:9], forward [9:12] (orthonormal, world frame), focal length in
