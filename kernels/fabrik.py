@@ -263,37 +263,42 @@ def fabrik_solve(
         it = 0
         flat = 0
         stop = 0
-        # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
-        while it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0:
-            backward_pass(i, parent, offset, eff_joint, targets, weights, world_pos, work, acc_w)
-            forward_pass(i, parent, offset, world_pos, work, acc_w)
-            if recover_each_iteration:
+        done = 0
+        while done == 0:
+            # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
+            iterate = it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0
+            if iterate:
+                backward_pass(i, parent, offset, eff_joint, targets, weights, world_pos, work, acc_w)
+                forward_pass(i, parent, offset, world_pos, work, acc_w)
+                if not recover_each_iteration:
+                    for j in range(parent.shape[0]):
+                        if acc_w[i, j] > 0.0:
+                            world_pos[i, j] = work[i, j]
+            # one call site (each inlined copy of this sweep costs ~20 s of compile time): every iteration of
+            # a constrained rig, or once after the last iteration of a constraint-free one
+            if (iterate and recover_each_iteration) or (not iterate and not recover_each_iteration and it > 0):
                 recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start,
                                       child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
                                       world_rot, weights, orient, work, acc_w, use_orient)
+            if iterate:
+                new_err = effector_error(i, eff_joint, targets, weights, world_pos)
+                new_turn = 0.0
+                if use_orient:
+                    new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+                it += 1
+                # stalled: four updates in a row that improved neither error by one part in a million
+                if new_err > err * (1.0 - 1e-6) and new_turn >= turn * (1.0 - 1e-6):
+                    flat += 1
+                else:
+                    flat = 0
+                err = new_err
+                turn = new_turn
+                if flat >= 4:
+                    stop = 1
             else:
-                for j in range(parent.shape[0]):
-                    if acc_w[i, j] > 0.0:
-                        world_pos[i, j] = work[i, j]
-            new_err = effector_error(i, eff_joint, targets, weights, world_pos)
-            new_turn = 0.0
-            if use_orient:
-                new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
-            it += 1
-            # stalled: four updates in a row that improved neither error by one part in a million
-            if new_err > err * (1.0 - 1e-6) and new_turn >= turn * (1.0 - 1e-6):
-                flat += 1
-            else:
-                flat = 0
-            err = new_err
-            turn = new_turn
-            if flat >= 4:
-                stop = 1
-        if it > 0 and not recover_each_iteration:
-            recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
-                                  eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos, world_rot, weights,
-                                  orient, work, acc_w, use_orient)
-            err = effector_error(i, eff_joint, targets, weights, world_pos)
+                if not recover_each_iteration and it > 0:
+                    err = effector_error(i, eff_joint, targets, weights, world_pos)
+                done = 1
         error[i] = err
         iterations[i] = it
         stalled[i] = stop
