@@ -11,7 +11,8 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 import taichi as ti
 
 from crowd_ik.kernels.quat import (
-    align_axis, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, yaw_quat, vec3, vec4,
+    align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, twist_angle,
+    wrap_angle, yaw_quat, vec3, vec4,
 )
 
 ndarray = ti.types.ndarray
@@ -137,6 +138,84 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
 
 
 @ti.func
+def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.template(), offset: ti.template(),
+                   lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(), child_start: ti.template(),
+                   child_list: ti.template(), local_rot: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Ball joint j above a hinge c above joint g (hip-knee-ankle, shoulder-elbow-wrist): put g exactly on its
+    proposed position. Returns (rotation of j, 1) or (q, 0) when j's limb is not of that shape.
+
+    The hinge angle t that makes |a + R(ax, t) b| equal the distance to the proposal is closed form (law of
+    cosines): with b split along and across ax, a.R(t)b = C + A cos t + B sin t, so
+    t = atan2(B, A) +- acos((D - C) / sqrt(A^2 + B^2)), D = (d^2 - |a|^2 - |b|^2) / 2; of the two, the one
+    inside the hinge's limits (then the one nearer the current angle). j then takes the minimal swing that
+    aims a + R(t) b at the proposal, so it keeps its twist and the limb's bend plane does not flip. The
+    hinge itself recovers t afterwards from the same proposal.
+    """
+    out = q
+    ok = 0
+    c = -1
+    for cc in range(child_start[j], child_start[j + 1]):
+        if acc_w[i, child_list[cc]] > 0.0:
+            c = child_list[cc]
+    if c >= 0 and kind[c] == 1:
+        g = -1
+        n_g = 0
+        for cc in range(child_start[c], child_start[c + 1]):
+            if acc_w[i, child_list[cc]] > 0.0:
+                g = child_list[cc]
+                n_g += 1
+        if n_g == 1:
+            ax = axes[c, 0]
+            a = offset[c]
+            b = offset[g]
+            b_par = b.dot(ax) * ax
+            b_perp = b - b_par
+            A = a.dot(b_perp)
+            B = a.dot(ti.math.cross(ax, b_perp))
+            C = a.dot(b_par)
+            want = qrot(inv_base, work[i, g] - pos_j)
+            D = 0.5 * (want.norm_sqr() - a.norm_sqr() - b.norm_sqr())
+            R = ti.sqrt(A * A + B * B)
+            if R > 1e-9 and want.norm_sqr() > 1e-12:
+                s = dof_start[c]
+                phi = ti.atan2(B, A)
+                spread = ti.acos(ti.math.clamp((D - C) / R, -1.0, 1.0))
+                now = twist_angle(local_rot[i, c], ax)
+                t = 0.0
+                best = 1e30
+                for k in ti.static(range(2)):
+                    cand = ti.math.clamp(wrap_angle(phi + (1.0 - 2.0 * k) * spread), lo[s], hi[s])
+                    score = ti.abs(C + A * ti.cos(cand) + B * ti.sin(cand) - D) * 1e3 + ti.abs(cand - now)
+                    if score < best:
+                        best = score
+                        t = cand
+                w = want.normalized()
+                v = a + qrot(axis_angle(ax, t), b)
+                out = qnormalize(qmul(swing(qrot(q, v).normalized(), w), q))
+                # swivel about the line j -> g to bring the hinge toward its proposed position (the pole), as
+                # twist_for_hinge_child does, fading out where the proposed or the solved limb is nearly straight
+                u_now = qrot(out, a)
+                u_now = u_now - u_now.dot(w) * w
+                u_want = qrot(inv_base, work[i, c] - pos_j)
+                bend = ti.math.cross(u_want, qrot(inv_base, work[i, g] - work[i, c])).norm() / ti.max(
+                    u_want.norm() * (work[i, g] - work[i, c]).norm(), 1e-12)
+                u_want = u_want - u_want.dot(w) * w
+                bend = ti.min(bend, u_now.norm() / a.norm())
+                if bend > TWIST_MIN_BEND and u_want.norm() > 1e-9:
+                    ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+                    poled = qnormalize(qmul(axis_angle(w, ramp * best_angle_about(w, u_now, u_want)), out))
+                    # the swivel is free for the position of g but not for j's limits: keep it only if, once
+                    # both are clamped to the limits, it lands g no farther from its proposal than no swivel
+                    first = a.normalized()
+                    kept = constrain_rotation(3, ax, ax, out, lo, hi, dof_start[j], cone[j], first)
+                    turned = constrain_rotation(3, ax, ax, poled, lo, hi, dof_start[j], cone[j], first)
+                    if (qrot(turned, v) - want).norm() <= (qrot(kept, v) - want).norm() + 1e-4:
+                        out = poled
+                ok = 1
+    return out, ok
+
+
+@ti.func
 def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
                           lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
                           child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
@@ -187,9 +266,13 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                         n_active += 1
                         if n_active == 1:
                             first_bone = offset[child_list[cc]].normalized()
+                limb = 0
+                if n_active == 1 and k == 3:
+                    q, limb = two_bone_swing(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, cone, dof_start,
+                                             child_start, child_list, local_rot, work, acc_w)
                 rounds = 1 if n_active <= 1 else 4
                 for _ in range(rounds):
-                    if n_active > 0:
+                    if n_active > 0 and limb == 0:
                         acc = vec4(0.0)
                         for cc in range(c0, c1):
                             c = child_list[cc]
@@ -202,7 +285,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                                     sw = -sw
                                 acc += wc * sw
                         q = qnormalize(qmul(qnormalize(acc), q))
-                if n_active == 1 and k == 3:
+                if n_active == 1 and k == 3 and limb == 0:
                     q = twist_for_hinge_child(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, dof_start,
                                               child_start, child_list, work, acc_w)
             # an orientation target on this joint's effector overrides the swing of its local axis
