@@ -93,11 +93,24 @@ def test_humanoid_limits_always_hold_and_most_targets_are_reached():
         rep = crowd.solve(targets, max_iterations=iterations, tolerance=5e-3)
         a = crowd.angles()
         assert np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)
-    assert np.mean(rep.converged) >= 0.5
+    assert np.mean(rep.converged) >= 0.75  # 0.82 with the two-bone limb step (0.69 without it)
     # one effector at a time is easy for a limited humanoid too
     crowd.set_angles(np.zeros(h.n_dof))
     rep = crowd.solve(targets, weights=[0, 1, 0, 0, 0], max_iterations=100, tolerance=5e-3)
     assert np.mean(rep.converged) >= 0.9
+
+
+def test_legs_are_solved_as_two_bone_limbs():
+    """Feet on in-limit poses, from rest: hip-knee-ankle is solved in closed form, so nearly all land in a few
+    iterations (without the two-bone step FABRIK reached 45 % in 10 iterations and 72 % in 100)."""
+    h = cik.Rig.humanoid()
+    targets = _reachable_humanoid_targets(h, 300, 3)
+    crowd = cik.Crowd(h, n=300, spacing=2.0)
+    rep = crowd.solve(targets, weights=[0, 0, 0, 1, 1], max_iterations=10, tolerance=2e-3)
+    assert np.mean(rep.converged) >= 0.95
+    lo, hi = h.angle_limits()
+    a = crowd.angles()
+    assert np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)  # knees included: they never bend backward
 
 
 @pytest.mark.parametrize("k", range(1, 5))

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.reference.quat import (
-    align_axis, axis_angle, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing,
+    align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
+    swing, twist_angle, wrap_angle,
 )
 from crowd_ik.reference.fk import yaw_quat
 from crowd_ik.rig import Rig
@@ -106,6 +107,79 @@ def _hinge_twist(rig, j, q, inv_base, pos_j, work, acc):
     return out
 
 
+def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
+    """Twin of fabrik.two_bone_swing for ball joint j over all characters: (rotations, mask of those it solved)."""
+    arr = rig.arrays
+    N = q.shape[0]
+    rows = np.arange(N)
+    offset = arr["offset"].astype(np.float64)
+    lo_all, hi_all = arr["lo"].astype(np.float64), arr["hi"].astype(np.float64)
+    c = np.full(N, -1)
+    for k in rig.children[j]:
+        c = np.where(acc[:, k] > 0, k, c)
+    out, ok = q.copy(), np.zeros(N, bool)
+    for k in rig.children[j]:
+        if rig.joints[k].kind != "hinge":
+            continue
+        g = np.full(N, -1)
+        n_g = np.zeros(N, int)
+        for gg in rig.children[k]:
+            g = np.where(acc[:, gg] > 0, gg, g)
+            n_g += acc[:, gg] > 0
+        want = qrot(inv_base, work[rows, np.maximum(g, 0)] - pos_j)
+        d2 = np.sum(want * want, -1)
+        ax = np.array(rig.joints[k].axes[0], np.float64)
+        a = offset[k]
+        b = offset[np.maximum(g, 0)]
+        b_par = (b @ ax)[:, None] * ax
+        b_perp = b - b_par
+        A = b_perp @ a
+        B = np.cross(ax, b_perp) @ a
+        C = b_par @ a
+        D = 0.5 * (d2 - a @ a - np.sum(b * b, -1))
+        R = np.sqrt(A * A + B * B)
+        sel = (c == k) & (n_g == 1) & (R > 1e-9) & (d2 > 1e-12)
+        if not np.any(sel):
+            continue
+        s = rig.dof_start[k]
+        phi = np.arctan2(B, A)
+        spread = np.arccos(np.clip((D - C) / np.maximum(R, 1e-30), -1.0, 1.0))
+        now = twist_angle(rot[:, k], ax)
+        t, best = np.zeros(N), np.full(N, 1e30)
+        for sign in (1.0, -1.0):
+            cand = np.clip(wrap_angle(phi + sign * spread), lo_all[s], hi_all[s])
+            score = np.abs(C + A * np.cos(cand) + B * np.sin(cand) - D) * 1e3 + np.abs(cand - now)
+            t = np.where(score < best, cand, t)
+            best = np.minimum(score, best)
+        w = want / np.sqrt(np.maximum(d2, 1e-30))[:, None]
+        v = a + qrot(axis_angle(np.broadcast_to(ax, (N, 3)), t), b)
+        cur = qrot(q, v)
+        swung = qnormalize(qmul(swing(cur / np.linalg.norm(cur, axis=-1, keepdims=True), w), q))
+        # the swivel toward the proposed hinge position, kept where the limits allow it
+        u_now = qrot(swung, np.broadcast_to(a, (N, 3)))
+        u_now = u_now - np.sum(u_now * w, -1, keepdims=True) * w
+        u_want = qrot(inv_base, work[:, k] - pos_j)
+        shin = work[rows, np.maximum(g, 0)] - work[:, k]
+        bend = np.linalg.norm(np.cross(u_want, qrot(inv_base, shin)), axis=-1) / np.maximum(
+            np.linalg.norm(u_want, axis=-1) * np.linalg.norm(shin, axis=-1), 1e-12)
+        u_want = u_want - np.sum(u_want * w, -1, keepdims=True) * w
+        bend = np.minimum(bend, np.linalg.norm(u_now, axis=-1) / np.linalg.norm(a))
+        ramp = np.minimum(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+        poled = qnormalize(qmul(axis_angle(w, ramp * best_angle_about(w, u_now, u_want)), swung))
+        sj = rig.dof_start[j]
+        axes = np.array([ax, ax])
+        first = a / np.linalg.norm(a)
+        cone = rig.joints[j].cone or 0.0
+        kept = constrain_rotation(3, axes, swung, lo_all[sj : sj + 3], hi_all[sj : sj + 3], cone, first)
+        turned = constrain_rotation(3, axes, poled, lo_all[sj : sj + 3], hi_all[sj : sj + 3], cone, first)
+        better = (np.linalg.norm(qrot(turned, v) - want, axis=-1)
+                  <= np.linalg.norm(qrot(kept, v) - want, axis=-1) + 1e-4)
+        use_pole = (bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & better
+        out = np.where(sel[:, None], np.where(use_pole[:, None], poled, swung), out)
+        ok |= sel
+    return out, ok
+
+
 def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
     arr = rig.arrays
     offset = arr["offset"].astype(np.float64)
@@ -146,9 +220,14 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
                     firsts = np.where(acc[:, c] > 0, c, firsts)
                 if len(kids) and np.all(firsts == firsts[0]) and firsts[0] >= 0:
                     first_bone = offset[firsts[0]] / np.linalg.norm(offset[firsts[0]])
+                limb = np.zeros(N, bool)
+                if joint.kind == "ball":
+                    solved, limb = _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc)
+                    limb &= n_active == 1
+                    q = np.where(limb[:, None], solved, q)
                 rounds = np.where(n_active <= 1, 1, 4)
                 for r in range(4):
-                    go = (n_active > 0) & (r < rounds)
+                    go = (n_active > 0) & (r < rounds) & ~limb
                     if not np.any(go):
                         break
                     total = np.zeros((N, 4))
@@ -163,7 +242,7 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
                     q = np.where(go[:, None], qnormalize(qmul(qnormalize(total), q)), q)
                 if joint.kind == "ball":
                     twisted = _hinge_twist(rig, j, q, inv_base, pos_j, work, acc)
-                    q = np.where((n_active == 1)[:, None], twisted, q)
+                    q = np.where(((n_active == 1) & ~limb)[:, None], twisted, q)
             for e, eff in enumerate(rig.effectors):
                 if eff.joint != j:
                     continue
