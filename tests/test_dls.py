@@ -372,7 +372,7 @@ def test_default_damping_and_error_clamp():
     s = dls_settings(cik.Rig.chain(**CHAIN16))
     assert s["length"] == pytest.approx(1.6)
     assert s["damping"] == pytest.approx(0.05 * 1.6)
-    np.testing.assert_allclose(s["eff_lim"], [[1.6, 0.4 * 0.1 * 4]], rtol=1e-6)  # d_max = 0.4 l sqrt(16)
+    np.testing.assert_allclose(s["eff_lim"], [[1.6, 1.0 * 0.1 * 4]], rtol=1e-6)  # d_max = 1.0 l sqrt(16)
     assert dls_settings(cik.Rig.chain(**CHAIN16), damping=0.0)["damping"] == pytest.approx(1e-3 * 1.6)
     h = dls_settings(cik.Rig.humanoid())
     assert list(h["jmode"][:5]) == [1, 1, 1, 1, 0]  # limited ball joints move their Euler angles
