@@ -203,14 +203,16 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                 bend = ti.min(bend, u_now.norm() / a.norm())
                 if bend > TWIST_MIN_BEND and u_want.norm() > 1e-9:
                     ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
-                    poled = qnormalize(qmul(axis_angle(w, ramp * best_angle_about(w, u_now, u_want)), out))
-                    # the swivel is free for the position of g but not for j's limits: keep it only if, once
-                    # both are clamped to the limits, it lands g no farther from its proposal than no swivel
-                    first = a.normalized()
-                    kept = constrain_rotation(3, ax, ax, out, lo, hi, dof_start[j], cone[j], first)
-                    turned = constrain_rotation(3, ax, ax, poled, lo, hi, dof_start[j], cone[j], first)
-                    if (qrot(turned, v) - want).norm() <= (qrot(kept, v) - want).norm() + 1e-4:
-                        out = poled
+                    turn = ramp * best_angle_about(w, u_now, u_want)
+                    if ti.abs(turn) > 1e-5:  # warm-started frames mostly need none
+                        poled = qnormalize(qmul(axis_angle(w, turn), out))
+                        # the swivel is free for the position of g but not for j's limits: keep it only if, once
+                        # both are clamped to the limits, it lands g no farther from its proposal than no swivel
+                        first = a.normalized()
+                        kept = constrain_rotation(3, ax, ax, out, lo, hi, dof_start[j], cone[j], first)
+                        turned = constrain_rotation(3, ax, ax, poled, lo, hi, dof_start[j], cone[j], first)
+                        if (qrot(turned, v) - want).norm() <= (qrot(kept, v) - want).norm() + 1e-4:
+                            out = poled
                 ok = 1
     return out, ok
 

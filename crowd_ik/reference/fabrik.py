@@ -165,7 +165,8 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         u_want = u_want - np.sum(u_want * w, -1, keepdims=True) * w
         bend = np.minimum(bend, np.linalg.norm(u_now, axis=-1) / np.linalg.norm(a))
         ramp = np.minimum(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
-        poled = qnormalize(qmul(axis_angle(w, ramp * best_angle_about(w, u_now, u_want)), swung))
+        turn = ramp * best_angle_about(w, u_now, u_want)
+        poled = qnormalize(qmul(axis_angle(w, turn), swung))
         sj = rig.dof_start[j]
         axes = np.array([ax, ax])
         first = a / np.linalg.norm(a)
@@ -174,7 +175,7 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         turned = constrain_rotation(3, axes, poled, lo_all[sj : sj + 3], hi_all[sj : sj + 3], cone, first)
         better = (np.linalg.norm(qrot(turned, v) - want, axis=-1)
                   <= np.linalg.norm(qrot(kept, v) - want, axis=-1) + 1e-4)
-        use_pole = (bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & better
+        use_pole = (bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & (np.abs(turn) > 1e-5) & better
         out = np.where(sel[:, None], np.where(use_pole[:, None], poled, swung), out)
         ok |= sel
     return out, ok
