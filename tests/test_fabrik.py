@@ -113,6 +113,28 @@ def test_legs_are_solved_as_two_bone_limbs():
     assert np.all(a >= lo - 1e-5) and np.all(a <= hi + 1e-5)  # knees included: they never bend backward
 
 
+def test_warm_started_frames_move_limbs_smoothly():
+    """The benchmark's game frames (head and hands drift a few cm, feet planted, 4 iterations per frame): no limb
+    flips. Before the two-bone step a leg or arm could swing 0.8 m in one frame; now every joint moves < 0.15 m."""
+    from crowd_ik import bench
+
+    n = 400
+    wl = bench.game_workload(n)
+    crowd = cik.Crowd(wl.rig, n=n, spacing=bench.SPACING)
+    crowd.solve(wl.targets, max_iterations=100, tolerance=wl.tolerance)
+    drift = bench._smooth_offsets(n, wl.rig.n_effectors, 7)
+    feet = np.array([name.startswith("foot") for name in wl.rig.effector_names])
+    before = crowd.joint_positions()
+    for f in range(30):
+        targets = wl.targets + np.where(feet[None, :, None], 0.0, drift((f + 1) / 60.0))
+        crowd.solve(targets, max_iterations=4, tolerance=wl.tolerance)
+        now = crowd.joint_positions()
+        assert np.linalg.norm(now - before, axis=2).max() < 0.15, f"frame {f}"
+        before = now
+        planted = np.linalg.norm(crowd.effector_positions()[:, feet] - targets[:, feet], axis=2)
+        assert np.mean(planted <= wl.tolerance) >= 0.98 and planted.max() < 0.05  # feet stay planted
+
+
 @pytest.mark.parametrize("k", range(1, 5))
 def test_moving_one_limb_keeps_the_held_effectors(k):
     """Dragging one hand or foot 5 cm from rest, the other effectors held where they are, reaches all of them."""
