@@ -333,6 +333,14 @@ class Crowd:
         ra, ti = self.rig_arrays, self._ti
         work = self.scratch("fabrik_pos", ti.math.vec3, (self.n, self.rig.n_joints))
         acc_w = self.scratch("fabrik_w", ti.f32, (self.n, self.rig.n_joints))
+        if self.rig.constraint_free and self._orient_zero:
+            fabrik.fabrik_solve_free(
+                ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+                self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
+                self._targets, self._weights, work, acc_w, max_iterations, tolerance,
+                self._error, self._iters, self._stalled,
+            )
+            return
         fabrik.fabrik_solve(
             ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
             ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],

@@ -163,6 +163,55 @@ def test_orientation_target_turns_the_sole_flat():
     assert np.all(up[:, 1] > math.cos(math.radians(2)))
 
 
+def test_interleaved_free_chain_kernel_equals_the_per_character_kernel(monkeypatch):
+    """fabrik_solve_free (LANES characters per thread) gives what fabrik_solve gives one character per thread with
+    the same deferred recovery, for a crowd that is not a multiple of LANES, with characters that start on their
+    target, converge, run out of iterations, or reach for an unreachable target, on a chain and on a tree."""
+    from crowd_ik.kernels import fabrik
+
+    tree = cik.Rig(
+        tuple(cik.Joint(n, p, o) for n, p, o in [("root", -1, (0, 0, 0)), ("a", 0, (0, 0.3, 0)), ("b", 1, (0, 0.3, 0)),
+                                              ("l", 2, (0.2, 0.1, 0)), ("r", 2, (-0.2, 0.1, 0)), ("lt", 3, (0.2, 0, 0)),
+                                              ("rt", 4, (-0.2, 0, 0))]),
+        (cik.Effector("left", 5), cik.Effector("right", 6)))
+    interleaved = fabrik.fabrik_solve_free
+    for rig in (cik.Rig.chain(7, 0.2, dim=3), tree):
+        assert rig.constraint_free
+        n = 4 * fabrik.LANES + 3
+        rng = np.random.default_rng(21)
+        crowd = cik.Crowd(rig, n=n, spacing=2.0)
+        start = crowd.effector_positions().copy()
+        targets = start + rng.normal(size=start.shape).astype(np.float32) * 0.4
+        targets[0] = start[0]  # already there: no iteration
+        targets[1, 0] += (5.0, 0.0, 0.0)  # out of reach
+        ra = crowd.rig_arrays
+
+        def per_character(parent, offset, kind, child_start, child_list, eff_joint, root_pos, root_yaw, local_rot,
+                          world_pos, world_rot, targets, weights, work, acc_w, max_iterations, tolerance, error,
+                          iterations, stalled):
+            fabrik.fabrik_solve(parent, offset, kind, ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+                                child_start, child_list, eff_joint, ra["eff_axis"], root_pos, root_yaw, local_rot,
+                                world_pos, world_rot, targets, weights, crowd._orient, work, acc_w, max_iterations,
+                                tolerance, 0, 0, error, iterations, stalled)
+
+        for iterations in (2, 50):
+            got = []
+            for kernel in (interleaved, per_character):
+                monkeypatch.setattr(fabrik, "fabrik_solve_free", kernel)
+                crowd.set_angles(np.zeros(rig.n_dof))
+                rep = crowd.solve(targets, max_iterations=iterations, tolerance=1e-4)
+                got.append((rep, crowd.joint_positions(), crowd.rotations()))
+            (a, pa, qa), (b, pb, qb) = got
+            reachable = a.status != Status.UNREACHABLE  # a plateau far from the target: stalls on round-off
+            np.testing.assert_array_equal(a.iterations[reachable], b.iterations[reachable])
+            np.testing.assert_array_equal(a.status, b.status)
+            # the same operations, compiled in another context (fast math may fuse them differently)
+            np.testing.assert_allclose(a.error[reachable], b.error[reachable], atol=1e-5)
+            np.testing.assert_allclose(pa[reachable], pb[reachable], atol=1e-5)
+            np.testing.assert_allclose(qa[reachable], qb[reachable], atol=1e-5)
+        assert a.iterations[0] == 0 and a.status[1] == Status.UNREACHABLE and np.any(a.status == Status.CONVERGED)
+
+
 def test_batch_equals_one_at_a_time_wherever_characters_stand():
     h = cik.Rig.humanoid()
     n = 40
