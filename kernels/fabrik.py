@@ -337,8 +337,10 @@ def fabrik_solve(
     when use_orient is 1).
     Outputs: error (N,) final max effector distance, iterations (N,), stalled (N,) 1 if it stopped improving.
     recover_each_iteration 0 is for rigs without constraints (free ball joints, no orientation targets):
-    there the recovered rotations reproduce the FABRIK positions exactly, so recovering them once after
-    the last iteration gives the same pose for a fraction of the work.
+    on a chain the recovered rotations reproduce the FABRIK positions exactly, so recovering them once
+    after the last iteration gives the same pose for a fraction of the work. (At a sub-base FABRIK moves
+    the children independently, and one rotation fits them only on average: there the final pose is the
+    fit of the last positions, not of each iteration's, and the error reported is the fitted pose's.)
     """
     for i in range(root_pos.shape[0]):
         err = effector_error(i, eff_joint, targets, weights, world_pos)
@@ -550,7 +552,7 @@ def fabrik_solve_free(
                 iterations[i] = it[l]
                 stalled[i] = 1 if flat[l] >= 4 else 0
                 error[i] = err[l]
-    # the rotations of the final positions, once (they reproduce them exactly: nothing constrains them)
+    # the rotations of the final positions, once (exact on a chain; at a sub-base the best fit, as fabrik_solve)
     for g in range((N + LANES - 1) // LANES):
         recover_free(g, parent, offset, kind, child_start, child_list, root_pos, root_yaw, iterations, local_rot,
                      world_pos, world_rot, work, acc_w)
