@@ -11,8 +11,8 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 import taichi as ti
 
 from crowd_ik.kernels.quat import (
-    align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize, swing, twist_angle,
-    wrap_angle, yaw_quat, vec3, vec4,
+    align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
+    swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
 
 ndarray = ti.types.ndarray
@@ -139,8 +139,9 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
 
 @ti.func
 def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.template(), offset: ti.template(),
-                   lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(), child_start: ti.template(),
-                   child_list: ti.template(), local_rot: ti.template(), work: ti.template(), acc_w: ti.template()):
+                   lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                   child_start: ti.template(), child_list: ti.template(), local_rot: ti.template(), work: ti.template(),
+                   acc_w: ti.template()):
     """Ball joint j above a hinge c above joint g (hip-knee-ankle, shoulder-elbow-wrist): put g exactly on its
     proposed position. Returns (rotation of j, 1) or (q, 0) when j's limb is not of that shape.
 
