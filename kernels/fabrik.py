@@ -45,11 +45,10 @@ def orientation_error(i, eff_joint: ti.template(), eff_axis: ti.template(), weig
 
 
 @ti.func
-def backward_pass(i, parent: ti.template(), offset: ti.template(), eff_joint: ti.template(), targets: ti.template(),
-                  weights: ti.template(), world_pos: ti.template(), work: ti.template(), acc_w: ti.template()):
-    """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints."""
-    J = parent.shape[0]
-    for j in range(J):
+def seed_targets(i, eff_joint: ti.template(), targets: ti.template(), weights: ti.template(), work: ti.template(),
+                 acc_w: ti.template()):
+    """Start of the backward pass: work[i, j] = sum of weighted targets at joint j, acc_w[i, j] their weight."""
+    for j in range(work.shape[1]):
         work[i, j] = vec3(0.0)
         acc_w[i, j] = 0.0
     for e in range(eff_joint.shape[0]):
@@ -58,17 +57,38 @@ def backward_pass(i, parent: ti.template(), offset: ti.template(), eff_joint: ti
             k = eff_joint[e]
             work[i, k] += w * targets[i, e]
             acc_w[i, k] += w
+
+
+@ti.func
+def backward_joint(i, j, p, length, fallback, world_pos: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Joint j of the backward pass: its proposal is the centroid of what reached it; it proposes its parent p."""
+    w = acc_w[i, j]
+    if w > 0.0:
+        pj = work[i, j] / w
+        work[i, j] = pj
+        toward = safe_normalize(world_pos[i, p] - pj, fallback)
+        work[i, p] += w * (pj + length * toward)
+        acc_w[i, p] += w
+
+
+@ti.func
+def forward_joint(i, j, p, length, fallback, work: ti.template(), acc_w: ti.template()):
+    """Joint j of the forward pass: an active joint goes to its bone length from its parent p's new place."""
+    if acc_w[i, j] > 0.0:
+        d = safe_normalize(work[i, j] - work[i, p], fallback)
+        work[i, j] = work[i, p] + length * d
+
+
+@ti.func
+def backward_pass(i, parent: ti.template(), offset: ti.template(), eff_joint: ti.template(), targets: ti.template(),
+                  weights: ti.template(), world_pos: ti.template(), work: ti.template(), acc_w: ti.template()):
+    """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints."""
+    J = parent.shape[0]
+    seed_targets(i, eff_joint, targets, weights, work, acc_w)
     for jj in range(J - 1):
         j = J - 1 - jj
-        w = acc_w[i, j]
-        if w > 0.0:
-            pj = work[i, j] / w
-            work[i, j] = pj
-            p = parent[j]
-            length = offset[j].norm()
-            toward = safe_normalize(world_pos[i, p] - pj, -offset[j] / length)
-            work[i, p] += w * (pj + length * toward)
-            acc_w[i, p] += w
+        length = offset[j].norm()
+        backward_joint(i, j, parent[j], length, -offset[j] / length, world_pos, work, acc_w)
     if acc_w[i, 0] > 0.0:
         work[i, 0] = work[i, 0] / acc_w[i, 0]
 
@@ -79,11 +99,27 @@ def forward_pass(i, parent: ti.template(), offset: ti.template(), world_pos: ti.
     """Root (fixed where it stands) -> leaves, putting each active joint at its bone length from its parent."""
     work[i, 0] = world_pos[i, 0]
     for j in range(1, parent.shape[0]):
-        if acc_w[i, j] > 0.0:
-            p = parent[j]
-            length = offset[j].norm()
-            d = safe_normalize(work[i, j] - work[i, p], offset[j] / length)
-            work[i, j] = work[i, p] + length * d
+        length = offset[j].norm()
+        forward_joint(i, j, parent[j], length, offset[j] / length, work, acc_w)
+
+
+@ti.func
+def swing_round(i, q, c0, c1, inv_base, pos_j, offset: ti.template(), child_list: ti.template(),
+                work: ti.template(), acc_w: ti.template()):
+    """One round of a ball joint's recovery: q turned by the weighted mean of the minimal swings that aim each
+    active child c (child_list[c0:c1]) at its proposed position."""
+    acc = vec4(0.0)
+    for cc in range(c0, c1):
+        c = child_list[cc]
+        wc = acc_w[i, c]
+        if wc > 0.0:
+            cur = qrot(q, offset[c]).normalized()
+            want = safe_normalize(qrot(inv_base, work[i, c] - pos_j), cur)
+            sw = swing(cur, want)
+            if sw.w < 0.0:
+                sw = -sw
+            acc += wc * sw
+    return qnormalize(qmul(qnormalize(acc), q))
 
 
 @ti.func
@@ -210,9 +246,14 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                         # the swivel is free for the position of g but not for j's limits: keep it only if, once
                         # both are clamped to the limits, it lands g no farther from its proposal than no swivel
                         first = a.normalized()
-                        kept = constrain_rotation(3, ax, ax, out, lo, hi, dof_start[j], cone[j], first)
-                        turned = constrain_rotation(3, ax, ax, poled, lo, hi, dof_start[j], cone[j], first)
-                        if (qrot(turned, v) - want).norm() <= (qrot(kept, v) - want).norm() + 1e-4:
+                        off = vec3(0.0)  # how far g lands from its proposal, without and with the swivel
+                        for which in range(2):  # a loop, not two calls: each inlined copy costs compile time
+                            cand = out
+                            if which == 1:
+                                cand = poled
+                            clamped = constrain_rotation(3, ax, ax, cand, lo, hi, dof_start[j], cone[j], first)
+                            off[which] = (qrot(clamped, v) - want).norm()
+                        if off[1] <= off[0] + 1e-4:
                             out = poled
                 ok = 1
     return out, ok
@@ -276,18 +317,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                 rounds = 1 if n_active <= 1 else 4
                 for _ in range(rounds):
                     if n_active > 0 and limb == 0:
-                        acc = vec4(0.0)
-                        for cc in range(c0, c1):
-                            c = child_list[cc]
-                            wc = acc_w[i, c]
-                            if wc > 0.0:
-                                cur = qrot(q, offset[c]).normalized()
-                                want = safe_normalize(qrot(inv_base, work[i, c] - pos_j), cur)
-                                sw = swing(cur, want)
-                                if sw.w < 0.0:
-                                    sw = -sw
-                                acc += wc * sw
-                        q = qnormalize(qmul(qnormalize(acc), q))
+                        q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)
                 if n_active == 1 and k == 3 and limb == 0:
                     q = twist_for_hinge_child(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, dof_start,
                                               child_start, child_list, work, acc_w)
@@ -436,18 +466,7 @@ def recover_free(g, parent: ti.template(), offset: ti.template(), kind: ti.templ
                     rounds = 1 if n_active <= 1 else 4
                     for _ in range(rounds):
                         if n_active > 0:
-                            acc = vec4(0.0)
-                            for cc in range(c0, c1):
-                                c = child_list[cc]
-                                wc = acc_w[i, c]
-                                if wc > 0.0:
-                                    cur = qrot(q, offset[c]).normalized()
-                                    want = safe_normalize(qrot(inv_base, work[i, c] - pos_j), cur)
-                                    sw = swing(cur, want)
-                                    if sw.w < 0.0:
-                                        sw = -sw
-                                    acc += wc * sw
-                            q = qnormalize(qmul(qnormalize(acc), q))
+                            q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)
                     local_rot[i, j] = q
                 world_rot[i, j] = qmul(base_rot, q)
 
@@ -478,7 +497,6 @@ def fabrik_solve_free(
     """fabrik_solve with recover_each_iteration 0 and no orientation targets, LANES characters per thread."""
     N = root_pos.shape[0]
     J = parent.shape[0]
-    E = eff_joint.shape[0]
     for g in range((N + LANES - 1) // LANES):
         err = ti.Vector([0.0] * LANES)
         it = ti.Vector([0] * LANES)
@@ -493,47 +511,27 @@ def fabrik_solve_free(
         while live.sum() > 0:
             # backward pass (backward_pass, lanes interleaved joint by joint)
             for l in ti.static(range(LANES)):
-                i = g * LANES + l
                 if live[l]:
-                    for j in range(J):
-                        work[i, j] = vec3(0.0)
-                        acc_w[i, j] = 0.0
-                    for e in range(E):
-                        w = weights[i, e]
-                        if w > 0.0:
-                            k = eff_joint[e]
-                            work[i, k] += w * targets[i, e]
-                            acc_w[i, k] += w
+                    seed_targets(g * LANES + l, eff_joint, targets, weights, work, acc_w)
             for jj in range(J - 1):
                 j = J - 1 - jj
-                p = parent[j]
                 length = offset[j].norm()
-                fallback = -offset[j] / length
                 for l in ti.static(range(LANES)):
-                    i = g * LANES + l
                     if live[l]:
-                        w = acc_w[i, j]
-                        if w > 0.0:
-                            pj = work[i, j] / w
-                            work[i, j] = pj
-                            toward = safe_normalize(world_pos[i, p] - pj, fallback)
-                            work[i, p] += w * (pj + length * toward)
-                            acc_w[i, p] += w
+                        backward_joint(g * LANES + l, j, parent[j], length, -offset[j] / length, world_pos, work,
+                                       acc_w)
             # forward pass from the fixed root (forward_pass), then the proposed positions become the pose
             for l in ti.static(range(LANES)):
                 i = g * LANES + l
                 if live[l]:
                     work[i, 0] = world_pos[i, 0]
             for j in range(1, J):
-                p = parent[j]
                 length = offset[j].norm()
-                fallback = offset[j] / length
                 for l in ti.static(range(LANES)):
                     i = g * LANES + l
                     if live[l]:
+                        forward_joint(i, j, parent[j], length, offset[j] / length, work, acc_w)
                         if acc_w[i, j] > 0.0:
-                            d = safe_normalize(work[i, j] - work[i, p], fallback)
-                            work[i, j] = work[i, p] + length * d
                             world_pos[i, j] = work[i, j]
             for l in ti.static(range(LANES)):
                 i = g * LANES + l
