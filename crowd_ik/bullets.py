@@ -260,6 +260,18 @@ class BulletPool:
         """Kill every bullet."""
         self.alive.fill(0)
 
+    def kill(self, slots) -> None:
+        """Kill the bullets in `slots` (K,) ints (a hit decided outside the pool, e.g. on a shooter).
+
+        One element write per slot from the host (~10 us each): meant for a few slots a step.
+        """
+        slots = np.asarray(slots, np.int64).reshape(-1)
+        if slots.size and (slots.min() < 0 or slots.max() >= self.pool_size):
+            bad = slots[(slots < 0) | (slots >= self.pool_size)][0]
+            raise ValueError(f"slots: expected pool slots in [0, {self.pool_size}) (got {bad})")
+        for s in np.unique(slots):
+            self.alive[int(s)] = 0
+
     # -- phases -------------------------------------------------------------------------------
 
     def spawn(self, origins, velocities) -> tuple[np.ndarray, int]:

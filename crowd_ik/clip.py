@@ -18,7 +18,8 @@ crowd), `shooters` and `player`. Keys of the .npz (F frames; n bodies, J joints,
                                  hinge and universal angles about their axes); the root joint's
                                  rotation applies after the yaw
     <g>_joints (F, n, J, 3) float32  world joint positions (FK of the above)
-    <g>_alive (F, n) bool        False once a character is hit (its pose is then the last one solved)
+    <g>_alive (F, n) bool        False once a character is hit or a shooter downed (its pose is then
+                                 the last one solved); the player is always True
     <g>_rig                      rig name;  <g>_joint_names (J,);  <g>_parents (J,) int32 (-1: root)
     <g>_offsets (J, 3) float32   rest offset of each joint from its parent, in the parent's frame, metres
     <g>_kinds (J,)               "ball" | "universal" | "hinge" | "fixed"
@@ -174,6 +175,8 @@ class ClipRecorder:
             g["angles"][k] = crowd.angles()[idx]
             if group == "characters":
                 g["alive"][k] = world.alive[idx]
+            elif group == "shooters":
+                g["alive"][k] = world.shooter_alive[idx]
         self.count += 1
 
     def arrays(self) -> dict[str, np.ndarray]:

@@ -2,8 +2,9 @@
 
 The scene is simulated exactly as `crowd-ik play` would up to frame K; every limb capsule of that
 frame (characters, shooters with their guns, the player, shards) and every bullet becomes part of
-a mesh, one mesh per body: `character_<i>` for each standing character, `shooter_<k>`, `player`,
-and `shards` / `bullets` when there are any. glTF's axes are the world's: y up, metres.
+a mesh, one mesh per body: `character_<i>` for each standing character, `shooter_<k>` for each
+standing shooter, `player`, and `shards` / `bullets` when there are any. glTF's axes are the
+world's: y up, metres.
 
 The capsules are built from one trimesh capsule template, moved and scaled per capsule in one
 vectorised step (its upper hemisphere goes to the capsule's end b, the lower one to a).
@@ -181,8 +182,9 @@ def run(args) -> int:
     meshes = world_meshes(world)
     write_glb(out, meshes, force=args.force)
     standing = sum(name.startswith("character_") for name in meshes)
+    shooters = sum(name.startswith("shooter_") for name in meshes)
     print(f"{out}: frame {args.frame} of {scene.name}, {len(meshes)} meshes "
-          f"({standing} characters standing, {scene.shooters.count} shooters, player"
+          f"({standing} characters standing, {shooters} shooters, player"
           f"{', shards' if 'shards' in meshes else ''}{', bullets' if 'bullets' in meshes else ''})")
     return 0
 

@@ -22,7 +22,9 @@ One world step, in a fixed order:
      head and hands, while the feet are targeted at their planted spots;
   3. IK for characters and shooters (one solve each, dead characters get zero weights);
   4. bullets move and collide (swept, sub-stepped) with the characters' limb capsules;
-     hit characters shatter into shards that fall, bounce and fade;
+     hit characters shatter into shards that fall, bounce and fade; then the player's live
+     bullets are tested against the standing shooters (see _player_hits_shooters): a shooter hit
+     is down - it shatters like a character, stops aiming and firing and is no longer drawn;
   5. bookkeeping: a dodge is a bullet that came within THREAT_REACH of a character's chest and
      went past it (or stopped past it) without hitting it.
 
@@ -74,7 +76,7 @@ SHARD_RESTITUTION = 0.35
 SHARD_FRICTION = 0.7  # horizontal speed kept at a bounce
 SHARD_IMPULSE = 0.1  # fraction of the bullet's velocity given to the pieces next to the impact
 SHARD_BURST = 1.6  # m/s: outward speed from the impact point
-MAX_SHATTERED = 256  # the shard pool holds this many characters' pieces (oldest reused first)
+MAX_SHATTERED = 256  # the shard pool holds this many characters' (and shooters') pieces, oldest reused first
 
 # The player's procedural walk (real time).
 CORNER_PAUSE = 0.6  # s: the player stops at every corner of its path (time slows down)
@@ -556,6 +558,8 @@ class World:
         self._shooter_joints_prev = self._shooter_joints.copy()
         self._shooter_orient = np.ascontiguousarray(np.broadcast_to(hb.orient, (S, hb.rig.n_effectors, 3)), np.float32)
         self.shots_fired = np.zeros(S, np.int64)
+        self.shooter_alive = np.ones(S, bool)  # False once a player's bullet has downed the shooter
+        self._shooter_weights = np.ones((S, hb.rig.n_effectors), np.float32)  # zero rows for downed shooters
         k = np.arange(S)
         period = 1.0 / scene.shooters.fire_rate
         self.next_fire = (period * (FIRST_SHOT[0] + (FIRST_SHOT[1] - FIRST_SHOT[0])
@@ -589,12 +593,13 @@ class World:
         self._bvel = np.zeros((P, 3), np.float32)
         self._balive = np.zeros(P, bool)
         self._balive_i32 = np.zeros(P, np.int32)  # the pool's alive flags, exported each step
+        # slots holding the player's live bullets: only these hit shooters (a shooter's own bullets
+        # start in its hand, inside its own limbs); cleared when the bullet dies or the slot is reused
+        self._player_slot = np.zeros(P, bool)
         self._serial = 0
 
-        # shards: a ring of pieces, SHARD_PIECES per bone of MAX_SHATTERED characters
-        per_char = SHARD_PIECES * B
-        M = per_char * min(N, MAX_SHATTERED)
-        self._shard_per_char = per_char
+        # shards: a ring of pieces, SHARD_PIECES per bone of MAX_SHATTERED characters and as many shooters
+        M = SHARD_PIECES * (B * min(N, MAX_SHATTERED) + hb.n_bones * min(S, MAX_SHATTERED))
         self._sh_c = np.zeros((M, 3), np.float32)
         self._sh_c_prev = np.zeros((M, 3), np.float32)
         self._sh_h = np.zeros((M, 3), np.float32)
@@ -628,7 +633,10 @@ class World:
     # ------------------------------------------------------------------ public API
     @property
     def stats(self) -> dict:
-        """Counters and the last frame's per-phase milliseconds (simulation, IK, render)."""
+        """Counters and the last frame's per-phase milliseconds (simulation, IK, render).
+
+        hits and standing count the characters; shooters_down the shooters downed by the player's bullets.
+        """
         return {
             "frame": self.frame,
             "world_time": self.world_time,
@@ -638,12 +646,18 @@ class World:
             "dodges": self.dodges,
             "shots": int(self.shots_fired.sum()),
             "standing": int(self.alive.sum()),
+            "shooters_down": self.shooters_down,
             "bullets": int(self._balive.sum()),
             "shards": int(self._sh_live.sum()),
             "simulation_ms": self._phase_ms["simulation"],
             "ik_ms": self._phase_ms["ik"],
             "render_ms": self._phase_ms["render"],
         }
+
+    @property
+    def shooters_down(self) -> int:
+        """How many shooters the player's bullets have downed."""
+        return int(self.n_shooters - np.count_nonzero(self.shooter_alive))
 
     def joints(self) -> np.ndarray:
         """(N, J, 3) float32 world joint positions of the characters after the last world step."""
@@ -654,7 +668,11 @@ class World:
         return self._bpos[self._balive].copy(), self._bvel[self._balive].copy()
 
     def fire(self, origins, velocities) -> np.ndarray:
-        """Spawn bullets now at origins (K, 3) m with velocities (K, 3) m/s; returns their slots."""
+        """Spawn bullets now at origins (K, 3) m with velocities (K, 3) m/s; returns their slots.
+
+        They are nobody's in particular: like the shooters' bullets they hit characters, not shooters
+        (only the player's bullets, fired by set_player_input, hit shooters).
+        """
         origins = np.asarray(origins, np.float32).reshape(-1, 3)
         velocities = np.asarray(velocities, np.float32).reshape(-1, 3)
         if origins.shape != velocities.shape or not (np.all(np.isfinite(origins)) and np.all(np.isfinite(velocities))):
@@ -670,7 +688,8 @@ class World:
         path is not resumed); the time scale follows its speed as before. aim: (3,) world point
         or None: the player turns toward it and IK holds its right hand on the line from the
         shoulder to it. fire: spawn one bullet now from the right hand toward aim (needs aim),
-        through the pool like the shooters' bullets. Returns the pool slots spawned (0 or 1).
+        through the pool like the shooters' bullets; the player's bullets also hit the shooters
+        (a shooter hit is down). Returns the pool slots spawned (0 or 1).
         """
         from crowd_ik.live import SteeredWalker
 
@@ -684,7 +703,7 @@ class World:
         bl, hb = self.scene.bullets, self.hbody
         hand = self._player_joints[hb.hand_r][None].astype(np.float32)
         d = ballistic_direction(hand, self.walker.aim[None], bl.speed, bl.gravity, bl.drag)
-        return self._spawn(hand + d * np.float32(0.08 * hb.scale), d * np.float32(bl.speed))
+        return self._spawn(hand + d * np.float32(0.08 * hb.scale), d * np.float32(bl.speed), player=True)
 
     def step(self) -> None:
         """Advance one video frame: the player walks 1/fps s of real time, the time scale follows it,
@@ -772,15 +791,17 @@ class World:
         hb = self.hbody
         S = self.n_shooters
         k = np.arange(S)
-        dead_target = ~self.alive[self.shooter_target]
+        up = self.shooter_alive  # downed shooters neither aim nor fire
+        dead_target = ~self.alive[self.shooter_target] & up
         if dead_target.any():
             self._pick_targets(k[dead_target])
         muzzle = self._shooter_joints[:, hb.hand_r]
         want = self._aim_directions(k, muzzle)
-        self.aim = _normalize(self.aim + (want - self.aim) * (1.0 - math.exp(-DT / TAU_AIM)))
+        aim = _normalize(self.aim + (want - self.aim) * (1.0 - math.exp(-DT / TAU_AIM)))
+        self.aim = aim if up.all() else np.where(up[:, None], aim, self.aim)
         if not (self.autofire and self.alive.any()):
             return
-        due = np.flatnonzero(self.world_time >= self.next_fire)
+        due = np.flatnonzero((self.world_time >= self.next_fire) & up)
         if due.size == 0:
             return
         shot = self.shots_fired[due]
@@ -796,9 +817,11 @@ class World:
         self.shots_fired[due] += 1
         self._pick_targets(due)
 
-    def _spawn(self, origins: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+    def _spawn(self, origins: np.ndarray, velocities: np.ndarray, player: bool = False) -> np.ndarray:
+        """Bullets into the pool's lowest free slots; player=True marks them as the player's."""
         slots, _dropped = self.pool.spawn(origins, velocities)
         n = len(slots)
+        self._player_slot[slots] = bool(player)
         self._slot_serial[slots] = self._serial + np.arange(n)
         self._serial += n
         self._slot_origin[slots] = origins[:n]
@@ -809,10 +832,16 @@ class World:
         return slots
 
     def _solve_shooters(self) -> None:
+        """Turn toward the aim and put the right hand on the line of fire (downed shooters keep their
+        last pose: zero weights; none standing, no solve)."""
         hb = self.hbody
+        up = self.shooter_alive
+        if not up.any():
+            return
         fwd = self.aim * [1.0, 0.0, 1.0]
         want_yaw = np.arctan2(fwd[:, 0], fwd[:, 2])
         turn = (want_yaw - self.shooter_yaw + math.pi) % (2.0 * math.pi) - math.pi
+        turn = np.where(up, turn, 0.0)
         self.shooter_yaw = (self.shooter_yaw + turn * (1.0 - math.exp(-DT / 0.25))).astype(np.float32)
         targets = hb.rest_targets(self.shooter_ground, self.shooter_yaw)
         shoulder = hb.point(hb.shoulder_r, self.shooter_ground, self.shooter_yaw)
@@ -821,7 +850,7 @@ class World:
         self.shooters.set_roots(self.shooter_roots, self.shooter_yaw)
         sv = self.scene.solver
         self.shooters.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
-                            orientations=self._shooter_orient)
+                            weights=self._shooter_weights, orientations=self._shooter_orient)
         self._shooter_joints = self.shooters.joint_positions().astype(np.float32)
         self._phase_ms["ik"] += 1e3 * (time.perf_counter() - t0)
 
@@ -929,17 +958,73 @@ class World:
             self.alive[chars] = False
             self._tracked[chars] = -1
             self.hits += len(chars)
-            self._shatter(chars, self._bvel[hits.bullets], hits.points)
+            self._shatter(self.body, self._joints[chars], self.colors[chars], self._bvel[hits.bullets], hits.points)
+        self._player_hits_shooters()
 
-    def _shatter(self, chars: np.ndarray, bullet_vel: np.ndarray, impact: np.ndarray) -> None:
-        """Break characters `chars` into shards, pushed by their bullets and bursting from the impacts."""
-        b = self.body
-        P = self._joints[chars]  # (H, J, 3)
+    def _player_hits_shooters(self) -> None:
+        """The player's live bullets against the standing shooters, after the pool's advance.
+
+        Each bullet's path segment of this step (_bpos_prev -> _bpos, a straight chord of its
+        arc) is swept against the shooters' limb capsules in their end-of-step pose: a hit is the
+        first point within bullet radius + limb radius (analytic, crowd_ik.reference.projectiles.
+        sweep_toi; no sub-steps: shooters only turn and move an arm). Each bullet's earliest hit
+        counts (ties to the lower capsule id); the bullet dies there and its shooter is down. A
+        shooter hit by several bullets in one step is downed once, by the earliest (toi, slot).
+        Only the player's bullets are tested: shooters do not down each other, and a shooter's own
+        bullets start in its hand, among its own limbs. A bullet the pool stopped on a character
+        this step is gone before this test (a character hit counts first, even when a shooter
+        stood earlier on the same step's segment). Free when the player has no live bullet (one
+        `any` over the pool's flags).
+        """
+        mine = self._player_slot
+        if not mine.any():
+            return
+        mine &= self._balive  # flags of bullets that died (a character hit, lifetime, far) are dropped
+        if not mine.any() or not self.shooter_alive.any():
+            return
+        from crowd_ik.reference.projectiles import sweep_toi
+
+        hb = self.hbody
+        slots = np.flatnonzero(mine)  # (K,) ascending
+        standing = np.flatnonzero(self.shooter_alive)  # (S',)
+        SJ = self._shooter_joints[standing]  # (S', J, 3) end-of-step pose
+        a = SJ[:, hb.bone_parent].reshape(-1, 3)  # (C, 3), C = S' * B, capsule c is bone c % B of standing[c // B]
+        b = SJ[:, 1:].reshape(-1, 3)
+        r = np.tile(hb.bone_radius, len(standing)) + np.float32(self.scene.bullets.radius)
+        p0, p1 = self._bpos_prev[slots], self._bpos[slots]
+        toi = sweep_toi(p0[:, None], p1[:, None], a[None], b[None], r[None])  # (K, C), -1: no hit
+        toi = np.where(toi >= 0.0, toi, np.inf)
+        first = np.argmin(toi, axis=1)  # the lowest capsule id among equal times
+        t = toi[np.arange(len(slots)), first]
+        hit = np.isfinite(t)
+        if not hit.any():
+            return
+        slots, first, t = slots[hit], first[hit], t[hit]
+        shooter = standing[first // hb.n_bones]
+        self.pool.kill(slots)
+        self._balive[slots] = False
+        self._balive_i32[slots] = 0
+        mine[slots] = False
+        order = np.lexsort((slots, t))  # per shooter the earliest (toi, slot) bullet shatters it
+        down, firsts = np.unique(shooter[order], return_index=True)
+        win = order[firsts]
+        impact = (p0[hit][win] + (p1[hit][win] - p0[hit][win]) * t[win, None]).astype(np.float32)
+        self.shooter_alive[down] = False
+        self._shatter(hb, self._shooter_joints[down], np.broadcast_to(np.float32(SHOOTER_COLOR), (len(down), 3)),
+                      self._bvel[slots[win]], impact)
+        self._shooter_weights[down] = 0.0
+
+    def _shatter(self, body: Body, joints: np.ndarray, colors: np.ndarray, bullet_vel: np.ndarray,
+                 impact: np.ndarray) -> None:
+        """Break H bodies of `body`'s rig, posed at joints (H, J, 3) and coloured colors (H, 3) BGR,
+        into shards, pushed by their bullets' velocities (H, 3) and bursting from the impacts (H, 3)."""
+        b = body
+        P = joints  # (H, J, 3)
         a, e = P[:, b.bone_parent], P[:, 1:]  # (H, B, 3)
         f = np.linspace(0.0, 1.0, SHARD_PIECES + 1, dtype=np.float32)
         starts = a[:, :, None] + (e - a)[:, :, None] * f[None, None, :-1, None]
         ends = a[:, :, None] + (e - a)[:, :, None] * f[None, None, 1:, None]
-        H, K = len(chars), self._shard_per_char
+        H, K = len(P), SHARD_PIECES * b.n_bones
         c = ((starts + ends) * 0.5).reshape(H, K, 3)
         h = ((ends - starts) * 0.5).reshape(H, K, 3)
         r = np.repeat(b.bone_radius * 0.9, SHARD_PIECES)[None].repeat(H, 0)
@@ -963,7 +1048,7 @@ class World:
         self._sh_r[slots] = r.reshape(-1)
         self._sh_age[slots] = 0.0
         self._sh_live[slots] = True
-        self._sh_color[slots] = np.repeat(self.colors[chars] * SHARD_TINT, K, axis=0)
+        self._sh_color[slots] = np.repeat(colors * SHARD_TINT, K, axis=0)
 
     def _shards_step(self) -> None:
         live = self._sh_live
@@ -998,26 +1083,28 @@ class World:
         capsules: a, b (M, 3) metres, radius (M,), color (M, 3) BGR 0..1, body (M,) int32 owner ids
         (characters 0..N-1, shooters N..N+S-1, the player N+S, shards N+S+1); body_names (N+S+2,);
         spheres: centre (K, 3), radius (K,), color (K, 3) (the bullets); trails (K, 2, 3).
+        Hit characters and downed shooters are not drawn (their shards are).
         """
         b, hb = self.body, self.hbody
         N, S = self.n, self.n_shooters
         alpha = np.float32(min(max(self._acc / DT, 0.0), 1.0))
         alive = np.flatnonzero(self.alive)
+        up = np.flatnonzero(self.shooter_alive)
         J = self._joints_prev[alive] + (self._joints[alive] - self._joints_prev[alive]) * alpha
-        SJ = self._shooter_joints_prev + (self._shooter_joints - self._shooter_joints_prev) * alpha
+        SJ = self._shooter_joints_prev[up] + (self._shooter_joints[up] - self._shooter_joints_prev[up]) * alpha
         parts_a = [J[:, b.bone_parent].reshape(-1, 3), SJ[:, hb.bone_parent].reshape(-1, 3)]
         parts_b = [J[:, 1:].reshape(-1, 3), SJ[:, 1:].reshape(-1, 3)]
-        parts_r = [np.tile(b.bone_radius, len(alive)), np.tile(hb.bone_radius, S)]
+        parts_r = [np.tile(b.bone_radius, len(alive)), np.tile(hb.bone_radius, len(up))]
         parts_c = [np.repeat(self.colors[alive], b.n_bones, axis=0),
-                   np.broadcast_to(np.float32(SHOOTER_COLOR), (S * hb.n_bones, 3))]
-        parts_o = [np.repeat(alive, b.n_bones), np.repeat(N + np.arange(S), hb.n_bones)]
+                   np.broadcast_to(np.float32(SHOOTER_COLOR), (len(up) * hb.n_bones, 3))]
+        parts_o = [np.repeat(alive, b.n_bones), np.repeat(N + up, hb.n_bones)]
         # guns: short black capsules in the shooters' right hands along the aim
         hand = SJ[:, hb.hand_r]
-        parts_a.append(hand - self.aim * 0.04 * hb.scale)
-        parts_b.append(hand + self.aim * 0.16 * hb.scale)
-        parts_r.append(np.full(S, 0.03 * hb.scale, np.float32))
-        parts_c.append(np.broadcast_to(np.float32(GUN_COLOR), (S, 3)))
-        parts_o.append(N + np.arange(S))
+        parts_a.append(hand - self.aim[up] * 0.04 * hb.scale)
+        parts_b.append(hand + self.aim[up] * 0.16 * hb.scale)
+        parts_r.append(np.full(len(up), 0.03 * hb.scale, np.float32))
+        parts_c.append(np.broadcast_to(np.float32(GUN_COLOR), (len(up), 3)))
+        parts_o.append(N + up)
         PJ = self._player_joints
         parts_a.append(PJ[hb.bone_parent])
         parts_b.append(PJ[1:])
@@ -1062,11 +1149,14 @@ class World:
         }
 
     def hud_lines(self) -> list[str]:
-        """The HUD text: time scale, frame, hits and dodges, IK milliseconds."""
+        """The HUD text: time scale, frame, hits, dodges, standing characters, shooters down, IK milliseconds."""
+        counts = f"hits {self.hits}   dodges {self.dodges}   standing {int(self.alive.sum())}/{self.n}"
+        if self.n_shooters:
+            counts += f"   shooters down {self.shooters_down}/{self.n_shooters}"
         lines = [
             f"TIME x{self.time_scale:.2f}",
             f"frame {self.frame}/{self.scene.n_frames}   world {self.world_time:.2f} s",
-            f"hits {self.hits}   dodges {self.dodges}   standing {int(self.alive.sum())}/{self.n}",
+            counts,
         ]
         if self.hud_timings and self._hud_ms["ik"] is not None:
             lines.append(f"IK {self._hud_ms['ik']:.1f} ms   sim {self._hud_ms['simulation']:.1f} ms"

@@ -3,9 +3,11 @@
 `crowd-ik play SCENE --live` opens a window of the scene's video size (or --size). The player
 walks with WASD or the arrow keys (camera-relative) or toward the cursor while the right mouse
 button is held; the mouse aims its right arm by IK and a left click fires a bullet at the aim
-point; Space pauses; Esc (or closing the window) quits. Time moves only while the player moves
-(the scene's time scale: World.step). The HUD shows the time scale, hits and dodges (the World's
-lines) and the window's frames per second; a crosshair marks the aim.
+point (the aim snaps to a standing shooter's chest near the cursor); a shooter the player's bullet
+hits is down: it shatters and stops firing. Space pauses; Esc (or closing the window) quits. Time
+moves only while the player moves (the scene's time scale: World.step). The HUD shows the time
+scale, hits, dodges and shooters down (the World's lines) and the window's frames per second; a
+crosshair marks the aim.
 
 Inputs, one row per simulated video frame (paused frames are neither simulated nor recorded):
     frame,move_x,move_z,aim_x,aim_y,aim_z,fire
@@ -387,10 +389,11 @@ def walk_toward(camera, px: float, py: float, player_xz) -> tuple[float, float]:
 
 
 def shooter_chests(world: World) -> np.ndarray:
-    """(S, 3) world positions of the shooters' chests (what the mouse snaps to)."""
+    """(S', 3) world positions of the standing shooters' chests (what the mouse snaps to)."""
     if world.n_shooters == 0:
         return np.zeros((0, 3))
-    return world.shooters.joint_positions()[:, world.hbody.chest].astype(np.float64)
+    chests = world.shooters.joint_positions()[:, world.hbody.chest].astype(np.float64)
+    return chests[world.shooter_alive]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -546,7 +549,7 @@ def run(args) -> int:
             write_inputs(args.record, session.log, scene_settings(scene), force=args.force)
     print(f"{scene.name} live: {result.frames} frames played ({result.shown} shown) in {result.wall_s:.1f} s, "
           f"{result.mean_fps:.1f} fps while playing (median {result.median_fps:.1f}); hits {world.hits}, "
-          f"dodges {world.dodges}, shots {world.player_shots}")
+          f"dodges {world.dodges}, shots {world.player_shots}, shooters down {world.shooters_down}/{world.n_shooters}")
     if args.record is not None:
         print(f"  inputs      {args.record}" if result.frames else "  inputs      none recorded (no frame played)")
     if args.stats is not None:

@@ -121,6 +121,7 @@ def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: i
         "characters": scene.characters.count,
         "standing": s["standing"],
         "shooters": scene.shooters.count,
+        "shooters_down": s["shooters_down"],
         "shots": s["shots"],
         "hits": s["hits"],
         "dodges": s["dodges"],
@@ -140,9 +141,11 @@ def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: i
 def format_summary(info: dict) -> str:
     """The one-screen text summary."""
     w, h = info["size"]
+    down = info.get("shooters_down", 0)
     return "\n".join([
         f"{info['scene']}: {info['frames']} frames, {w}x{h} at {info['fps']:g} fps -> {info['output']}",
-        f"  characters  {info['characters']} ({info['standing']} standing), shooters {info['shooters']}, "
+        f"  characters  {info['characters']} ({info['standing']} standing), shooters {info['shooters']}"
+        f"{f' ({down} down)' if down else ''}, "
         f"shots {info['shots']}",
         f"  hits        {info['hits']}",
         f"  dodges      {info['dodges']}",

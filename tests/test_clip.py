@@ -102,6 +102,25 @@ def test_clip_holds_every_frame_and_its_angles_reproduce_its_joints(humanoid_run
     assert np.all(np.diff(clip["world_time"]) >= 0) and clip["world_time"][-1] > 0
 
 
+def test_a_downed_shooter_is_recorded_as_not_alive():
+    from crowd_ik.clip import ClipRecorder
+    from crowd_ik.game import World
+    from crowd_ik.scene import load_scene, scene_with
+
+    scene = scene_with(load_scene(None), size=(96, 64), **{
+        "characters.count": 1, "shooters.count": 2, "shooters.placement": "line", "shooters.radius": 6.0,
+        "bullets.pool_size": 64, "time.floor": 1.0, "player.path": [[0.0, -3.0]]})
+    world = World(scene, autofire=False)
+    rec = ClipRecorder(world, 2)
+    rec.add(world)
+    chest = world.shooters.joint_positions()[1, world.hbody.chest]
+    world.set_player_input((0.0, 0.0), chest, fire=True)
+    world.simulate(0.3)
+    rec.add(world)
+    alive = rec.arrays()["shooters_alive"]
+    assert alive.tolist() == [[True, True], [True, False]]
+
+
 def test_existing_clip_is_refused_before_simulating(tmp_path, capsys):
     scene = _scene_file(tmp_path)
     clip, video = tmp_path / "c.npz", tmp_path / "v.mp4"

@@ -52,6 +52,22 @@ def test_glb_loads_back_with_one_mesh_per_body(tiny, tmp_path, frame):
     assert colors[:, 0].mean() > 150 and colors[:, 2].mean() < 100  # red shooters (RGB in the file)
 
 
+def test_a_downed_shooter_has_no_mesh():
+    from crowd_ik.export import world_meshes
+    from crowd_ik.scene import scene_with
+
+    scene = scene_with(load_scene(None), size=(96, 64), **{
+        "characters.count": 1, "shooters.count": 2, "shooters.placement": "line", "shooters.radius": 6.0,
+        "bullets.pool_size": 64, "time.floor": 1.0, "player.path": [[0.0, -3.0]]})
+    world = World(scene, autofire=False)
+    chest = world.shooters.joint_positions()[0, world.hbody.chest]
+    world.set_player_input((0.0, 0.0), chest, fire=True)
+    world.simulate(0.3)
+    assert world.shooter_alive.tolist() == [False, True]
+    names = set(world_meshes(world))
+    assert "shooter_0" not in names and {"shooter_1", "player", "shards"} <= names
+
+
 def test_export_does_not_clobber(tiny, tmp_path):
     out = tmp_path / "pose.glb"
     out.write_bytes(b"keep")

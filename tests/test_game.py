@@ -177,6 +177,113 @@ def test_every_shipped_scene_runs(path):
     assert frame.shape == (64, 96, 3) and frame.std() > 1
 
 
+# ---------------------------------------------------------------------------------------------
+# the player's bullets down shooters
+
+
+def shooter_range(**overrides):
+    """One character at the origin, two shooters side by side at x = -1 and +1, z = -6 (facing +z,
+    firing at it), the player standing at (0, -3) between them and the character; time runs at 1."""
+    return small_scene(**{"characters.count": 1, "shooters.count": 2, "shooters.placement": "line",
+                          "shooters.radius": 6.0, "shooters.fire_rate": 4.0, "time.floor": 1.0,
+                          "player.path": [[0.0, -3.0]], **overrides})
+
+
+def _chest(world, k):
+    return world.shooters.joint_positions()[k, world.hbody.chest].astype(np.float64)
+
+
+def test_players_bullet_downs_the_shooter_it_hits():
+    world = World(shooter_range())
+    N = world.n
+    hb = world.hbody
+    slot = world.set_player_input((0.0, 0.0), _chest(world, 0), fire=True)
+    assert len(slot) == 1 and world._player_slot[slot[0]]
+    downed_at = None
+    for step in range(int(0.5 / DT)):
+        shards = world.stats["shards"]
+        world.step_world()
+        if world.shooters_down:
+            downed_at = step
+            # it shattered into as many shards as a humanoid character does, and the bullet is gone
+            assert world.stats["shards"] - shards == game.SHARD_PIECES * hb.n_bones
+            assert not world.pool.alive_mask()[slot[0]] and not world._balive[slot[0]]
+            assert not world._player_slot.any()
+            break
+    assert downed_at is not None and downed_at * DT < 0.3  # 3 m at 25 m/s: about 0.12 s
+    assert world.shooter_alive.tolist() == [False, True]
+    assert world.stats["shooters_down"] == 1
+    assert "shooters down 1/2" in world.hud_lines()[2]
+    # down for good: it fires no more, the other shooter goes on
+    shots = world.shots_fired.copy()
+    world.simulate(2.0)
+    assert world.shots_fired[0] == shots[0] and world.shots_fired[1] > shots[1]
+    assert world.shooter_alive.tolist() == [False, True]
+    bodies = world.primitives()["capsules"]["body"]
+    assert not np.any(bodies == N + 0) and np.any(bodies == N + 1)  # no longer drawn (shooter 1 still is)
+    assert world.render().shape == (64, 96, 3)
+
+
+@pytest.mark.parametrize("direction", [+1.0, -1.0])
+def test_the_first_shooter_along_the_bullets_path_is_hit(direction):
+    """A path segment through both shooters in one step: the earlier hit along it counts, once."""
+    world = World(shooter_range(), autofire=False)
+    world.simulate(DT)
+    slot = world.set_player_input((0.0, 0.0), _chest(world, 0), fire=True)[0]
+    y, z = _chest(world, 0)[1], _chest(world, 0)[2]
+    world._bpos_prev[slot] = [-3.0 * direction, y, z]  # a segment from one side past both chests
+    world._bpos[slot] = [3.0 * direction, y, z]
+    world._player_hits_shooters()
+    first = 0 if direction > 0 else 1
+    assert world.shooter_alive.tolist() == [k != first for k in range(2)]
+    assert not world._balive[slot] and not world.pool.alive_mask()[slot]
+
+
+def test_a_shooters_own_bullets_never_down_a_shooter():
+    # a bullet that is not the player's, fired from 1.5 m in front of shooter 0 straight at its chest
+    world = World(shooter_range(), autofire=False)
+    chest = _chest(world, 0)
+    world.fire((chest + [0.0, 0.0, 1.5])[None], [[0.0, 0.0, -25.0]])
+    world.simulate(0.5)
+    assert world.shooters_down == 0 and world.shooter_alive.all() and world.stats["shards"] == 0
+    # two shooters facing each other across a dodging character: their misses fly on to each other
+    ring = small_scene(**{"characters.count": 1, "shooters.count": 2, "shooters.radius": 6.0,
+                          "shooters.fire_rate": 6.0, "shooters.spread_deg": 4.0, "time.floor": 1.0,
+                          "player.path": [[6.0, 6.0]]})
+    world = World(ring)
+    world.simulate(2.0)
+    assert world.stats["shots"] >= 6 and world.stats["dodges"] >= 3
+    assert world.shooters_down == 0 and world.shooter_alive.all()
+
+
+def test_a_players_bullet_that_misses_downs_nobody():
+    world = World(shooter_range(), autofire=False)
+    world.set_player_input((0.0, 0.0), _chest(world, 0) + [0.0, 3.0, 0.0], fire=True)
+    world.simulate(1.0)
+    assert world.shooters_down == 0 and world.shooter_alive.all()
+    assert world.stats["shards"] == 0 and "shooters down 0/2" in world.hud_lines()[2]
+
+
+def test_shooting_shooters_is_deterministic():
+    def run():
+        world = World(shooter_range(frames=20), hud_timings=False)
+        frames = []
+        for k in range(20):
+            aim = _chest(world, k // 10)  # shooter 0 first, then shooter 1
+            world.set_player_input((0.3, 0.0) if k < 8 else (0.0, 0.0), aim, fire=k in (1, 11))
+            world.step()
+            frames.append(world.render())
+        stats = {key: v for key, v in world.stats.items() if not key.endswith("_ms")}
+        return (stats, world.joints(), world.shooters.joint_positions(), world._sh_c[world._sh_live],
+                np.stack(frames))
+
+    (stats_a, *arrays_a), (stats_b, *arrays_b) = run(), run()
+    assert stats_a["shooters_down"] == 2  # both shots hit: something happened
+    assert stats_a == stats_b
+    for a, b in zip(arrays_a, arrays_b):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("layout,rig", [("ring", "humanoid"), ("random", "humanoid"), ("grid", "chain")])
 def test_layouts_and_rigs(layout, rig):
     scene = small_scene(**{"characters.layout": layout, "characters.rig": rig, "time.floor": 1.0,

@@ -10,8 +10,8 @@ from xwindow import crowd_ik_window, xdo
 
 from crowd_ik import game
 from crowd_ik.cli import main
-from crowd_ik.live import (HEADER, PlayerInput, PlayerWorld, Session, aim_point, format_inputs, load_inputs,
-                           move_from_keys, scene_settings, walk_toward, write_inputs)
+from crowd_ik.live import (CHEST_HEIGHT, HEADER, PlayerInput, PlayerWorld, Session, aim_point, format_inputs,
+                           load_inputs, move_from_keys, scene_settings, shooter_chests, walk_toward, write_inputs)
 from crowd_ik.render import Camera
 from crowd_ik.video import read_frames
 
@@ -122,6 +122,48 @@ def test_fire_spawns_one_bullet_from_the_hand_toward_the_aim(tiny):
         world.set_player_input((0.0, 2.0))
     with pytest.raises(ValueError, match="aim"):
         world.set_player_input((0.0, 0.0), (np.nan, 0.0, 0.0))
+
+
+RANGE = """
+seed = 5
+characters = { count = 1 }
+shooters = { count = 2, placement = "line", radius = 6.0, fire_rate = 3.0 }
+player = { path = [[0, -3]] }
+bullets = { pool_size = 64 }
+time = { floor = 1.0 }
+camera = { position = [0, 4, 9], look_at = [0, 1, 0], fov_deg = 50 }
+video = { width = 160, height = 96, fps = 24, frames = 12 }
+"""
+
+
+def test_a_click_on_a_shooter_downs_it(tmp_path):
+    """The live loop's path: the cursor near a shooter snaps the aim to its chest, a click fires, the
+    player's bullet downs that shooter; the HUD counts it and the aim no longer snaps to it."""
+    from crowd_ik.scene import load_scene
+
+    path = tmp_path / "range.toml"
+    path.write_text(RANGE)
+    world = PlayerWorld(load_scene(path), hud_timings=False)
+    session = Session(world)
+    cam = world.camera
+    chests = shooter_chests(world)
+    assert len(chests) == 2
+    ((px, py),), _ = cam.project(chests[1][None])
+    aim = aim_point(cam, px + 2, py - 1, CHEST_HEIGHT * world.hbody.scale, chests)
+    np.testing.assert_allclose(aim, chests[1])  # snapped
+    shots = world.shots_fired.copy()
+    session.advance(PlayerInput((0.0, 0.0), tuple(aim), True))
+    for _ in range(10):  # about 0.4 s of world time; the bullet needs about 0.12 s
+        session.advance(PlayerInput((0.0, 0.0), tuple(aim), False))
+    assert world.player_shots == 1
+    assert world.shooter_alive.tolist() == [True, False] and world.stats["shooters_down"] == 1
+    assert "shooters down 1/2" in world.hud_lines()[2]
+    np.testing.assert_allclose(shooter_chests(world), chests[:1], atol=0.05)  # only the standing one
+    down_shots = world.shots_fired[1]
+    for _ in range(24):
+        session.advance(PlayerInput((0.0, 0.0), tuple(aim), False))
+    assert world.shots_fired[1] == down_shots and world.shots_fired[0] > shots[0]
+    assert session.frame(PlayerInput((0.0, 0.0), tuple(aim), False)).shape == (96, 160, 3)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -304,6 +304,19 @@ def test_pool_exhaustion_drops_the_extra_deterministically():
     assert slots.tolist() == [] and dropped == 1
 
 
+def test_kill_frees_the_given_slots():
+    pool = BulletPool(4)
+    pool.spawn(np.zeros((3, 3)), np.ones((3, 3)))
+    pool.kill([2, 0, 2])
+    assert pool.alive_mask().tolist() == [False, True, False, False]
+    pool.kill([])
+    assert pool.count_alive() == 1
+    with pytest.raises(ValueError, match="slots"):
+        pool.kill([4])
+    slots, _ = pool.spawn(np.ones((2, 3)), np.ones((2, 3)))  # freed slots are reused lowest first
+    assert slots.tolist() == [0, 2]
+
+
 def test_lifetime_kills():
     pool = BulletPool(2)
     pool.spawn([[0, 5, 0]], [[1, 0, 0]])
