@@ -178,8 +178,10 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                    lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
                    child_start: ti.template(), child_list: ti.template(), local_rot: ti.template(), work: ti.template(),
                    acc_w: ti.template()):
-    """Ball joint j above a hinge c above joint g (hip-knee-ankle, shoulder-elbow-wrist): put g exactly on its
-    proposed position. Returns (rotation of j, 1) or (q, 0) when j's limb is not of that shape.
+    """Ball joint j above a hinge c above joint g (hip-knee-ankle, shoulder-elbow-wrist): put the limb's end exactly
+    on its proposed position. The end is g, or a rigid leaf past g (the hand past the wrist), carried at g's
+    current angles; g's place is then written back as its proposal. Returns (rotation of j, 1) or (q, 0) when
+    j's limb is not of that shape.
 
     The hinge angle t that makes |a + R(ax, t) b| equal the distance to the proposal is closed form (law of
     cosines): with b split along and across ax, a.R(t)b = C + A cos t + B sin t, so
@@ -202,15 +204,26 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                 g = child_list[cc]
                 n_g += 1
         if n_g == 1:
+            # a rigid leaf past g (the hand past the wrist) ends the limb instead, at g's current angles
+            end = g
+            b = offset[g]
+            h = -1
+            n_h = 0
+            for cc in range(child_start[g], child_start[g + 1]):
+                if acc_w[i, child_list[cc]] > 0.0:
+                    h = child_list[cc]
+                    n_h += 1
+            if n_h == 1 and kind[h] == 0 and child_start[h + 1] == child_start[h]:
+                end = h
+                b = offset[g] + qrot(local_rot[i, g], offset[h])
             ax = axes[c, 0]
             a = offset[c]
-            b = offset[g]
             b_par = b.dot(ax) * ax
             b_perp = b - b_par
             A = a.dot(b_perp)
             B = a.dot(ti.math.cross(ax, b_perp))
             C = a.dot(b_par)
-            want = qrot(inv_base, work[i, g] - pos_j)
+            want = qrot(inv_base, work[i, end] - pos_j)
             D = 0.5 * (want.norm_sqr() - a.norm_sqr() - b.norm_sqr())
             R = ti.sqrt(A * A + B * B)
             if R > 1e-9 and want.norm_sqr() > 1e-12:
@@ -234,8 +247,8 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                 u_now = qrot(out, a)
                 u_now = u_now - u_now.dot(w) * w
                 u_want = qrot(inv_base, work[i, c] - pos_j)
-                bend = ti.math.cross(u_want, qrot(inv_base, work[i, g] - work[i, c])).norm() / ti.max(
-                    u_want.norm() * (work[i, g] - work[i, c]).norm(), 1e-12)
+                bend = ti.math.cross(u_want, qrot(inv_base, work[i, end] - work[i, c])).norm() / ti.max(
+                    u_want.norm() * (work[i, end] - work[i, c]).norm(), 1e-12)
                 u_want = u_want - u_want.dot(w) * w
                 bend = ti.min(bend, u_now.norm() / a.norm())
                 if bend > TWIST_MIN_BEND and u_want.norm() > 1e-9:
@@ -255,6 +268,8 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                             off[which] = (qrot(clamped, v) - want).norm()
                         if off[1] <= off[0] + 1e-4:
                             out = poled
+                if end != g:  # where g goes, so that the hinge recovers t and g keeps its angles
+                    work[i, g] = pos_j + qrot(qconj(inv_base), qrot(out, a + qrot(axis_angle(ax, t), offset[g])))
                 ok = 1
     return out, ok
 

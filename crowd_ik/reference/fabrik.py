@@ -126,11 +126,21 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         for gg in rig.children[k]:
             g = np.where(acc[:, gg] > 0, gg, g)
             n_g += acc[:, gg] > 0
-        want = qrot(inv_base, work[rows, np.maximum(g, 0)] - pos_j)
+        # a rigid leaf past g (the hand past the wrist) ends the limb instead, at g's current angles
+        end = np.maximum(g, 0)
+        b = offset[end].copy()
+        for gg in rig.children[k]:
+            n_h = sum((acc[:, hh] > 0).astype(int) for hh in rig.children[gg])
+            for hh in rig.children[gg]:
+                if rig.joints[hh].kind == "fixed" and not rig.children[hh]:
+                    use = (g == gg) & (n_h == 1) & (acc[:, hh] > 0)
+                    b_h = offset[gg] + qrot(rot[:, gg], np.broadcast_to(offset[hh], (N, 3)))
+                    end = np.where(use, hh, end)
+                    b = np.where(use[:, None], b_h, b)
+        want = qrot(inv_base, work[rows, end] - pos_j)
         d2 = np.sum(want * want, -1)
         ax = np.array(rig.joints[k].axes[0], np.float64)
         a = offset[k]
-        b = offset[np.maximum(g, 0)]
         b_par = (b @ ax)[:, None] * ax
         b_perp = b - b_par
         A = b_perp @ a
@@ -159,7 +169,7 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         u_now = qrot(swung, np.broadcast_to(a, (N, 3)))
         u_now = u_now - np.sum(u_now * w, -1, keepdims=True) * w
         u_want = qrot(inv_base, work[:, k] - pos_j)
-        shin = work[rows, np.maximum(g, 0)] - work[:, k]
+        shin = work[rows, end] - work[:, k]
         bend = np.linalg.norm(np.cross(u_want, qrot(inv_base, shin)), axis=-1) / np.maximum(
             np.linalg.norm(u_want, axis=-1) * np.linalg.norm(shin, axis=-1), 1e-12)
         u_want = u_want - np.sum(u_want * w, -1, keepdims=True) * w
@@ -176,7 +186,14 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         better = (np.linalg.norm(qrot(turned, v) - want, axis=-1)
                   <= np.linalg.norm(qrot(kept, v) - want, axis=-1) + 1e-4)
         use_pole = (bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & (np.abs(turn) > 1e-5) & better
-        out = np.where(sel[:, None], np.where(use_pole[:, None], poled, swung), out)
+        chosen = np.where(use_pole[:, None], poled, swung)
+        out = np.where(sel[:, None], chosen, out)
+        # where g goes when the limb ends past it, so that the hinge recovers t and g keeps its angles
+        moved = sel & (end != np.maximum(g, 0))
+        gi = np.maximum(g, 0)
+        lands = pos_j + qrot(qconj(inv_base), qrot(chosen, a + qrot(axis_angle(np.broadcast_to(ax, (N, 3)), t),
+                                                                   offset[gi])))
+        work[rows[moved], gi[moved]] = lands[moved]
         ok |= sel
     return out, ok
 
