@@ -14,12 +14,9 @@ from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
+from crowd_ik.reference.fabrik import FLAT, STALL_AFTER, TWIST_FULL_BEND, TWIST_MIN_BEND  # one source of truth
 
 ndarray = ti.types.ndarray
-# sine of the bend FABRIK proposes for a hinge limb: below MIN the ball joint above keeps its twist,
-# above FULL it turns the hinge axis fully onto the proposed plane (linear in between)
-TWIST_MIN_BEND = 0.01
-TWIST_FULL_BEND = 0.1
 
 
 @ti.func
@@ -420,13 +417,13 @@ def fabrik_solve(
                     new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
                 it += 1
                 # stalled: four updates in a row that improved neither error by one part in a million
-                if new_err > err * (1.0 - 1e-6) and new_turn >= turn * (1.0 - 1e-6):
+                if new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT):
                     flat += 1
                 else:
                     flat = 0
                 err = new_err
                 turn = new_turn
-                if flat >= 4:
+                if flat >= STALL_AFTER:
                     stop = 1
             else:
                 if not recover_each_iteration and it > 0:
@@ -553,18 +550,18 @@ def fabrik_solve_free(
                 if live[l]:
                     new_err = effector_error(i, eff_joint, targets, weights, world_pos)
                     it[l] += 1
-                    if new_err > err[l] * (1.0 - 1e-6):
+                    if new_err > err[l] * (1.0 - FLAT):
                         flat[l] += 1
                     else:
                         flat[l] = 0
                     err[l] = new_err
-                    if flat[l] >= 4 or it[l] >= max_iterations or err[l] <= tolerance:
+                    if flat[l] >= STALL_AFTER or it[l] >= max_iterations or err[l] <= tolerance:
                         live[l] = 0
         for l in ti.static(range(LANES)):
             i = g * LANES + l
             if i < N:
                 iterations[i] = it[l]
-                stalled[i] = 1 if flat[l] >= 4 else 0
+                stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
                 error[i] = err[l]
     # the rotations of the final positions, once (exact on a chain; at a sub-base the best fit, as fabrik_solve)
     for g in range((N + LANES - 1) // LANES):

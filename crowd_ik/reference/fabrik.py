@@ -16,7 +16,12 @@ from crowd_ik.reference.quat import (
 from crowd_ik.reference.fk import yaw_quat
 from crowd_ik.rig import Rig
 
-TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1  # as kernels/fabrik.py
+# Constants of the solver, shared with kernels/fabrik.py (which imports them).
+# Sine of the bend FABRIK proposes for a hinge limb: below TWIST_MIN_BEND the ball joint above keeps its
+# twist, above TWIST_FULL_BEND it turns the hinge axis fully onto the proposed plane (linear in between).
+TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1
+# A character has stalled after STALL_AFTER updates in a row that improve its errors by less than FLAT.
+STALL_AFTER, FLAT = 4, 1e-6
 
 
 def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -315,11 +320,11 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
         new_err = _error(rig, p, targets[idx], weights[idx])
         new_turn = _turn(rig, w, weights[idx], orient[idx])
         iters[idx] += 1
-        flat_now = (new_err > err[idx] * (1 - 1e-6)) & (new_turn >= turn[idx] * (1 - 1e-6))
+        flat_now = (new_err > err[idx] * (1 - FLAT)) & (new_turn >= turn[idx] * (1 - FLAT))
         flat[idx] = np.where(flat_now, flat[idx] + 1, 0)
         err[idx] = new_err
         turn[idx] = new_turn
-        stalled[idx] = flat[idx] >= 4
+        stalled[idx] = flat[idx] >= STALL_AFTER
     if deferred and np.any(iters > 0):
         idx = np.nonzero(iters > 0)[0]
         r, p, w = rot[idx], pos[idx], wrot[idx]
