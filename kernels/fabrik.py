@@ -14,7 +14,9 @@ from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
-from crowd_ik.reference.fabrik import FLAT, STALL_AFTER, TWIST_FULL_BEND, TWIST_MIN_BEND  # one source of truth
+from crowd_ik.reference.fabrik import (  # one source of truth
+    FLAT, STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
+)
 
 ndarray = ti.types.ndarray
 
@@ -326,7 +328,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                 if n_active == 1 and k == 3:
                     q, limb = two_bone_swing(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, cone, dof_start,
                                              child_start, child_list, local_rot, work, acc_w)
-                rounds = 1 if n_active <= 1 else 4
+                rounds = 1 if n_active <= 1 else SWING_ROUNDS
                 for _ in range(rounds):
                     if n_active > 0 and limb == 0:
                         q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)
@@ -475,7 +477,7 @@ def recover_free(g, parent: ti.template(), offset: ti.template(), kind: ti.templ
                     for cc in range(c0, c1):
                         if acc_w[i, child_list[cc]] > 0.0:
                             n_active += 1
-                    rounds = 1 if n_active <= 1 else 4
+                    rounds = 1 if n_active <= 1 else SWING_ROUNDS
                     for _ in range(rounds):
                         if n_active > 0:
                             q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)

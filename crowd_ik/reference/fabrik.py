@@ -22,6 +22,9 @@ from crowd_ik.rig import Rig
 TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1
 # A character has stalled after STALL_AFTER updates in a row that improve its errors by less than FLAT.
 STALL_AFTER, FLAT = 4, 1e-6
+# A joint with several active children (a sub-base) turns by the weighted mean of their swings, refined
+# this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
+SWING_ROUNDS = 2
 
 
 def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -248,8 +251,8 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
                     solved, limb = _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc)
                     limb &= n_active == 1
                     q = np.where(limb[:, None], solved, q)
-                rounds = np.where(n_active <= 1, 1, 4)
-                for r in range(4):
+                rounds = np.where(n_active <= 1, 1, SWING_ROUNDS)
+                for r in range(SWING_ROUNDS):
                     go = (n_active > 0) & (r < rounds) & ~limb
                     if not np.any(go):
                         break
