@@ -134,9 +134,10 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         for gg in rig.children[k]:
             g = np.where(acc[:, gg] > 0, gg, g)
             n_g += acc[:, gg] > 0
+        gi = np.maximum(g, 0)
         # a rigid leaf past g (the hand past the wrist) ends the limb instead, at g's current angles
-        end = np.maximum(g, 0)
-        b = offset[end].copy()
+        end = gi.copy()
+        b = offset[gi]
         for gg in rig.children[k]:
             n_h = sum((acc[:, hh] > 0).astype(int) for hh in rig.children[gg])
             for hh in rig.children[gg]:
@@ -193,12 +194,12 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
         turned = constrain_rotation(3, axes, poled, lo_all[sj : sj + 3], hi_all[sj : sj + 3], cone, first)
         better = (np.linalg.norm(qrot(turned, v) - want, axis=-1)
                   <= np.linalg.norm(qrot(kept, v) - want, axis=-1) + 1e-4)
-        use_pole = (bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & (np.abs(turn) > 1e-5) & better
+        use_pole = ((bend > TWIST_MIN_BEND) & (np.linalg.norm(u_want, axis=-1) > 1e-9) & (np.abs(turn) > 1e-5)
+                    & better)
         chosen = np.where(use_pole[:, None], poled, swung)
         out = np.where(sel[:, None], chosen, out)
         # where g goes when the limb ends past it, so that the hinge recovers t and g keeps its angles
-        moved = sel & (end != np.maximum(g, 0))
-        gi = np.maximum(g, 0)
+        moved = sel & (end != gi)
         lands = pos_j + qrot(qconj(inv_base), qrot(chosen, a + qrot(axis_angle(np.broadcast_to(ax, (N, 3)), t),
                                                                    offset[gi])))
         work[rows[moved], gi[moved]] = lands[moved]
