@@ -357,6 +357,9 @@ class Crowd:
         from crowd_ik.reference.dls import dls_settings
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
+        if self._dls_free_applies(params):
+            self._solve_dls_free(max_iterations, tolerance, params)
+            return
         # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
         D, J = max(rig.n_dof, 1), rig.n_joints
         R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(params["balance_weight"] > 0)
@@ -382,6 +385,35 @@ class Crowd:
             self.scratch("dls_sys", ti.f32, (N, R, R)),
             max_iterations, tolerance, settings["damping"], settings["length"],
             params["rest_weight"], params["velocity_weight"], params["balance_weight"], self._error, self._iters,
+            self._stalled,
+        )
+
+    def _dls_free_applies(self, params: dict) -> bool:
+        """Whether dls_solve_free gives this solve: one position effector on a constraint-free rig, no extra terms."""
+        return (self.rig.constraint_free and self.rig.n_effectors == 1 and self._orient_zero
+                and params["rest_weight"] == 0 and params["velocity_weight"] == 0
+                and params["balance_weight"] == 0 and params["joint_weights"] is None)
+
+    def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
+        """DLS of one effector on a constraint-free rig: closed-form 3 x 3 system, four characters per thread."""
+        from crowd_ik.kernels import dls_free
+        from crowd_ik.reference.dls import dls_settings
+
+        ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
+        settings = dls_settings(rig, params["damping"])
+        on_path_np = np.zeros(rig.n_joints, np.int32)
+        path = rig.path_to_root(rig.effectors[0].joint)
+        on_path_np[path] = rig.arrays["kind"][path] > 0
+        on_path = self.scratch("dls_on_path", ti.i32, (rig.n_joints,))
+        on_path.from_numpy(on_path_np)
+        eff_lim = self.scratch("dls_eff_lim", ti.f32, settings["eff_lim"].shape)
+        eff_lim.from_numpy(settings["eff_lim"])
+        dls_free.dls_solve_free(
+            ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
+            self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
+            self.scratch("dls_rel_pos", ti.math.vec3, (N, rig.n_joints)),
+            self.scratch("dls_bak", ti.math.vec4, (N, 2, rig.n_joints)),
+            max_iterations, tolerance, settings["damping"], settings["length"], self._error, self._iters,
             self._stalled,
         )
 
