@@ -395,11 +395,11 @@ class Crowd:
                 and params["balance_weight"] == 0 and params["joint_weights"] is None)
 
     def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        """DLS of one effector on a constraint-free rig: closed-form 3 x 3 system, four characters per thread."""
+        """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, each pose in local arrays."""
         from crowd_ik.kernels import dls_free
         from crowd_ik.reference.dls import dls_settings
 
-        ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
+        ra, ti, rig = self.rig_arrays, self._ti, self.rig
         settings = dls_settings(rig, params["damping"])
         on_path_np = np.zeros(rig.n_joints, np.int32)
         path = rig.path_to_root(rig.effectors[0].joint)
@@ -411,10 +411,8 @@ class Crowd:
         dls_free.dls_solve_free(
             ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
-            self.scratch("dls_rel_pos", ti.math.vec3, (N, rig.n_joints)),
-            self.scratch("dls_bak", ti.math.vec4, (N, 2, rig.n_joints)),
             max_iterations, tolerance, settings["damping"], settings["length"], self._error, self._iters,
-            self._stalled,
+            self._stalled, rig.n_joints,
         )
 
     def _solve_ccd(self, max_iterations: int, tolerance: float, params: dict) -> None:

@@ -1,4 +1,4 @@
-"""Damped least squares for a single position effector on a constraint-free rig, LANES characters per thread.
+"""Damped least squares for a single position effector on a constraint-free rig, in closed form.
 
 The same solve as kernels/dls.py's dls_solve (the same steps, LM damping, acceptance and stall tests,
 so the same poses up to float32 rounding) when every joint is an unlimited ball (or fixed), the rig has
@@ -10,14 +10,18 @@ weights. There the problem has closed forms that the general kernel computes the
   J J^T = sum_n [r_n]x [r_n]x^T = sum_n (|r_n|^2 I - r_n r_n^T), a 3 x 3 sum built in one pass over
   the path (no Jacobian is stored), and the DLS step of joint n is J_n^T y = r_n x y with
   y = (w J J^T + lam^2 I)^-1 sqrt(w) e (Buss 2004, eq. 11, rows scaled by sqrt(w)).
-- The step, the update q <- exp(R_p^-1 w) q and forward kinematics run in one pass root to leaf (a
-  joint's step needs the pose it was computed at: the old rotations are kept as the backup that a
-  rejected step restores).
+- dls_solve's update q_j <- exp(R_p^-1 w_j) q_j is, in world terms, R_j <- D_j R_j with
+  D_j = D_p exp(w_j) (D_p = R_p' R_p^-1, the parent's turn; the identity above the root): the solver
+  keeps world rotations and turns them, step and forward kinematics in one pass root to leaf, and
+  the local rotations follow once, at the end.
 
-One character per thread: running several interleaved per thread (as fabrik_solve_free does) gave
-nothing here (chain16, 100,000 characters: 216k, 220k, 216k, 213k solves/s with 1, 2, 4, 8 per
-thread), the passes have enough independent work per joint; what did pay was the series form of the
-step's exponential (qexp_series, 216k -> 266k).
+Speed (chain16, 100,000 characters, 2 cores; the general kernel: 94k solves/s): the closed forms
+216k; the series exponential (qexp_series) 266k; world rotations 276k; several characters interleaved
+per thread (as fabrik_solve_free does) changed nothing (213k-220k for 1, 2, 4, 8). What the machine
+code showed: every store to an ndarray made LLVM reload the array's shape and pointer (they may
+alias), about 7 integer instructions per float stored. So each character's pose lives in local
+arrays (n_joints is a compile-time constant: a kernel per rig size) and touches the ndarrays only
+to read its start and write its result.
 """
 
 import taichi as ti
@@ -26,24 +30,34 @@ from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat, vec3,
 from crowd_ik.reference.dls import FLAT, LAM_CAP, PROGRESS, STALL_AFTER, WINDOW
 
 ndarray = ti.types.ndarray
-OLD_LOCAL, OLD_WORLD = 0, 1  # slots of the backup bak[i, slot, j]
 
 
 @ti.func
-def objective(i, k, w, eff_lim: ti.template(), targets: ti.template(), root_pos: ti.template(),
-              rel_pos: ti.template()):
-    """(F, position error) of character i's pose: dls.objective for one position effector of weight w."""
+def get4(m: ti.template(), j):
+    return vec4(m[j, 0], m[j, 1], m[j, 2], m[j, 3])
+
+
+@ti.func
+def get3(m: ti.template(), j):
+    return vec3(m[j, 0], m[j, 1], m[j, 2])
+
+
+@ti.func
+def put(m: ti.template(), j, v):
+    for c in ti.static(range(v.n)):
+        m[j, c] = v[c]
+
+
+@ti.func
+def objective(t, base, p, w, reach):
+    """(F, position error) of a pose with the effector at p, root at base, target t (dls.objective, one effector)."""
     f = 0.0
     perr = 0.0
     if w > 0.0:
-        t = targets[i, 0] - root_pos[i]
-        base = rel_pos[i, 0]
-        p = rel_pos[i, k]
         d = t - p
         perr = d.norm()
         r = t - base
         dist = r.norm()
-        reach = eff_lim[0, 0]
         if dist > reach:
             q = p - base
             qn = q.norm()
@@ -54,18 +68,14 @@ def objective(i, k, w, eff_lim: ti.template(), targets: ti.template(), root_pos:
 
 
 @ti.func
-def aimed_error(i, k, eff_lim: ti.template(), targets: ti.template(), root_pos: ti.template(),
-                rel_pos: ti.template()):
+def aimed_error(t, base, p, reach, dmax):
     """The error a step aims to remove: the target pulled to reach + d_max from the root, then clamped to d_max."""
-    reach = eff_lim[0, 0]
-    dmax = eff_lim[0, 1]
-    base = rel_pos[i, 0]
-    tgt = targets[i, 0] - root_pos[i]
-    v = tgt - base
+    v = t - base
     dist = v.norm()
+    tgt = t
     if dist > reach + dmax:
         tgt = base + v * ((reach + dmax) / dist)
-    d = tgt - rel_pos[i, k]
+    d = tgt - p
     dn = d.norm()
     if dn > dmax:
         d = d * (dmax / dn)
@@ -122,41 +132,21 @@ def qexp_series(r):
 
 
 @ti.func
-def step_joint(i, j, p, has_dof, moves, stepping, p_eff, y, base_root, offset: ti.template(),
-               local_rot: ti.template(), world_rot: ti.template(), rel_pos: ti.template(), bak: ti.template()):
-    """Joint j of character i: back up its rotations, add its step r_j x y (stepping), and run its FK."""
-    q = local_rot[i, j]
-    bak[i, OLD_LOCAL, j] = q
-    bak[i, OLD_WORLD, j] = world_rot[i, j]
-    base_new = base_root
-    base_old = base_root
-    base_pos = vec3(0.0)
-    if p >= 0:
-        base_new = world_rot[i, p]
-        base_old = bak[i, OLD_WORLD, p]
-        base_pos = rel_pos[i, p]
-    if has_dof:
-        wv = vec3(0.0)
-        if stepping and moves:
-            wv = ti.math.cross(p_eff - rel_pos[i, j], y)
-        q = qnormalize(qmul(qexp_series(qrot(qconj(base_old), wv)), q))
-        local_rot[i, j] = q
-    rel_pos[i, j] = base_pos + qrot(base_new, offset[j])
-    world_rot[i, j] = qmul(base_new, q)
+def renormalize(q):
+    """q / |q| for a q within float32 rounding of unit length: one Newton step of 1 / sqrt (error O(|q|^2 - 1)^2)."""
+    return q * (1.5 - 0.5 * q.dot(q))
 
 
 @ti.func
-def restore_joint(i, j, p, base_root, offset: ti.template(), local_rot: ti.template(), world_rot: ti.template(),
-                  rel_pos: ti.template(), bak: ti.template()):
-    """Joint j of character i back to its backed-up rotations (the positions follow by FK)."""
-    local_rot[i, j] = bak[i, OLD_LOCAL, j]
-    world_rot[i, j] = bak[i, OLD_WORLD, j]
+def joint_fk(j, p, base_root, offset: ti.template(), rot: ti.template(), pos: ti.template()):
+    """pos[j] from its parent's position and world rotation; returns that parent rotation (base_root at the root)."""
     base_rot = base_root
     base_pos = vec3(0.0)
     if p >= 0:
-        base_rot = world_rot[i, p]
-        base_pos = rel_pos[i, p]
-    rel_pos[i, j] = base_pos + qrot(base_rot, offset[j])
+        base_rot = get4(rot, p)
+        base_pos = get3(pos, p)
+    put(pos, j, base_pos + qrot(base_rot, offset[j]))
+    return base_rot
 
 
 @ti.kernel
@@ -174,8 +164,6 @@ def dls_solve_free(
     world_rot: ndarray(dtype=vec4, ndim=2),
     targets: ndarray(dtype=vec3, ndim=2),
     weights: ndarray(ndim=2),
-    rel_pos: ndarray(dtype=vec3, ndim=2),
-    bak: ndarray(dtype=vec4, ndim=3),
     max_iterations: ti.i32,
     tolerance: ti.f32,
     damping: ti.f32,
@@ -183,44 +171,81 @@ def dls_solve_free(
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
+    n_joints: ti.template(),
 ):
     """dls_solve for one position effector on a constraint-free rig (see the module docstring), in place.
 
     on_path (J,): 1 for the joints with DOFs on the effector's path to the root. eff_lim (1, 2): reach
-    and d_max. Scratch: rel_pos (N, J), bak (N, 2, J). Other arguments and outputs as dls_solve.
+    and d_max. n_joints: J, as a Python int. Other arguments and outputs as dls_solve.
     """
-    J = parent.shape[0]
     k = eff_joint[0]
+    reach = eff_lim[0, 0]
+    dmax = eff_lim[0, 1]
     max_attempts = 2 * max_iterations + 8
     for i in range(root_pos.shape[0]):
+        rot = ti.Matrix.zero(ti.f32, n_joints, 4)  # world rotations
+        pos = ti.Matrix.zero(ti.f32, n_joints, 3)  # joint positions relative to the root point
+        rot_bak = ti.Matrix.zero(ti.f32, n_joints, 4)  # world rotations before the step
+        turn = ti.Matrix.zero(ti.f32, n_joints, 4)  # D_j of the step
         base_root = yaw_quat(root_yaw[i])
+        t = targets[i, 0] - root_pos[i]
         w = weights[i, 0]
         sw = ti.sqrt(ti.max(w, 0.0))
+        # the start pose, its rotations normalised (dls_solve's first, zero, step)
+        for j in range(n_joints):
+            q = local_rot[i, j]
+            if kind[j] > 0:
+                q = qnormalize(q)
+                local_rot[i, j] = q
+            put(rot, j, qmul(joint_fk(j, parent[j], base_root, offset, rot, pos), q))
+        obj = objective(t, get3(pos, 0), get3(pos, k), w, reach)
+        f_cur = obj[0]
+        perr = obj[1]
+        ref_f = f_cur
         lam = damping
-        f_cur = 0.0
-        perr = 0.0
-        ref_f = 0.0
         accepted = 0
         ref_accepted = 0
         attempts = 0
         bad = 0
         stop = 0
-        failed = 0
-        stepping = 0  # 0 for the first pass: the start pose projected (normalised), no step
-        p_eff = vec3(0.0)  # effector position at the pose the step was built at
-        y = vec3(0.0)  # sqrt(w) (w J J^T + lam^2 I)^-1 sqrt(w) e
-        live = 1
-        while live == 1:
-            for j in range(J):
-                step_joint(i, j, parent[j], kind[j] > 0, on_path[j] != 0, stepping, p_eff, y, base_root, offset,
-                           local_rot, world_rot, rel_pos, bak)
-            new = objective(i, k, w, eff_lim, targets, root_pos, rel_pos)
-            rejected = 0
-            if stepping == 0:
-                f_cur = new[0]
-                perr = new[1]
-                ref_f = new[0]
-            elif new[0] < f_cur and failed == 0:
+        go = 1
+        if perr <= tolerance or max_iterations <= 0:
+            go = 0
+        while go == 1:
+            # the step at this pose: A = w sum_n (|r_n|^2 I - r_n r_n^T) + lam^2 I over the path, b = sqrt(w) e
+            attempts += 1
+            p_eff = get3(pos, k)
+            a00, a10, a11, a20, a21, a22 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            for j in range(n_joints):
+                if on_path[j] != 0:
+                    r = p_eff - get3(pos, j)
+                    rr = r.norm_sqr()
+                    a00 += rr - r.x * r.x
+                    a10 -= r.y * r.x
+                    a11 += rr - r.y * r.y
+                    a20 -= r.z * r.x
+                    a21 -= r.z * r.y
+                    a22 += rr - r.z * r.z
+            lam2 = lam * lam
+            x = solve3(w * a00 + lam2, w * a10, w * a11 + lam2, w * a20, w * a21, w * a22 + lam2,
+                       sw * aimed_error(t, get3(pos, 0), p_eff, reach, dmax))
+            failed = x[3] == 0.0
+            y = sw * x[3] * x.xyz  # a void step is zero
+            # take it: R_j <- D_j R_j, D_j = D_p exp(r_j x y), and FK, root to leaf
+            for j in range(n_joints):
+                p = parent[j]
+                r_old = get4(rot, j)
+                put(rot_bak, j, r_old)
+                d = vec4(0.0, 0.0, 0.0, 1.0)
+                if p >= 0:
+                    d = get4(turn, p)
+                if on_path[j] != 0:
+                    d = qmul(d, qexp_series(ti.math.cross(p_eff - get3(pos, j), y)))
+                put(turn, j, d)
+                joint_fk(j, p, base_root, offset, rot, pos)
+                put(rot, j, renormalize(qmul(d, r_old)))
+            new = objective(t, get3(pos, 0), get3(pos, k), w, reach)
+            if new[0] < f_cur and not failed:
                 if f_cur - new[0] < FLAT * f_cur:
                     bad += 1
                 else:
@@ -234,42 +259,27 @@ def dls_solve_free(
                         bad = STALL_AFTER
                     ref_f = f_cur
                     ref_accepted = accepted
-            else:
-                rejected = 1
+            else:  # rejected: back to the pose before the step
                 bad += 1
                 lam *= 4.0
+                for j in range(n_joints):
+                    put(rot, j, get4(rot_bak, j))
+                    joint_fk(j, parent[j], base_root, offset, rot, pos)
             if bad >= STALL_AFTER or lam > LAM_CAP * length:
                 stop = 1
             if accepted >= max_iterations or attempts >= max_attempts or stop == 1 or perr <= tolerance:
-                live = 0
+                go = 0
                 if stop == 0 and accepted < max_iterations and perr > tolerance:
                     stop = 1  # attempts ran out: too many rejected steps
-            if rejected == 1:
-                for j in range(J):
-                    restore_joint(i, j, parent[j], base_root, offset, local_rot, world_rot, rel_pos, bak)
-            if live == 1:
-                # the next step: A = w sum_n (|r_n|^2 I - r_n r_n^T) + lam^2 I over the path, b = sqrt(w) e
-                attempts += 1
-                stepping = 1
-                p_eff = rel_pos[i, k]
-                a00, a10, a11, a20, a21, a22 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-                for j in range(J):
-                    if on_path[j] != 0:
-                        r = p_eff - rel_pos[i, j]
-                        rr = r.norm_sqr()
-                        a00 += rr - r.x * r.x
-                        a10 -= r.y * r.x
-                        a11 += rr - r.y * r.y
-                        a20 -= r.z * r.x
-                        a21 -= r.z * r.y
-                        a22 += rr - r.z * r.z
-                lam2 = lam * lam
-                x = solve3(w * a00 + lam2, w * a10, w * a11 + lam2, w * a20, w * a21, w * a22 + lam2,
-                           sw * aimed_error(i, k, eff_lim, targets, root_pos, rel_pos))
-                failed = 1 if x[3] == 0.0 else 0
-                y = sw * x[3] * x.xyz  # a void step is zero
-        for j in range(J):
-            world_pos[i, j] = root_pos[i] + rel_pos[i, j]
+        for j in range(n_joints):
+            q = get4(rot, j)
+            world_rot[i, j] = q
+            world_pos[i, j] = root_pos[i] + get3(pos, j)
+            if accepted > 0 and kind[j] > 0:
+                base_rot = base_root
+                if parent[j] >= 0:
+                    base_rot = get4(rot, parent[j])
+                local_rot[i, j] = qnormalize(qmul(qconj(base_rot), q))
         error[i] = perr
         iterations[i] = accepted
         stalled[i] = stop
