@@ -26,26 +26,11 @@ to read its start and write its result.
 
 import taichi as ti
 
+from crowd_ik.kernels.local_arrays import get3, get4, put
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat, vec3, vec4
 from crowd_ik.reference.dls import FLAT, LAM_CAP, PROGRESS, STALL_AFTER, WINDOW
 
 ndarray = ti.types.ndarray
-
-
-@ti.func
-def get4(m: ti.template(), j):
-    return vec4(m[j, 0], m[j, 1], m[j, 2], m[j, 3])
-
-
-@ti.func
-def get3(m: ti.template(), j):
-    return vec3(m[j, 0], m[j, 1], m[j, 2])
-
-
-@ti.func
-def put(m: ti.template(), j, v):
-    for c in ti.static(range(v.n)):
-        m[j, c] = v[c]
 
 
 @ti.func
