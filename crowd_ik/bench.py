@@ -62,9 +62,13 @@ GAME_POOL = 4096
 GAME_WARMUP_FRAMES = 3
 MEMORY_LIMIT = 16 * 2**30  # the Crowd's own refusal limit, checked here before any child starts
 
-FULL = dict(chars=DEFAULT_CHARS, solvers=SOLVERS, rigs=RIGS, repeats=3, budget=10.0, game_chars=10000, game_frames=60)
+GAME_SCENE = "stress_10k"  # the shipped scene timed as the game plays it
+GAME_SCENE_WARMUP = 180  # world steps before timing it: the shooters' first bullets reach the crowd after ~2.5 s
+
+FULL = dict(chars=DEFAULT_CHARS, solvers=SOLVERS, rigs=RIGS, repeats=3, budget=10.0, game_chars=10000, game_frames=60,
+            scene_steps=120)
 QUICK = dict(chars=(100, 1000), solvers=("fabrik", "dls"), rigs=("chain16",), repeats=1, budget=1.0, game_chars=256,
-             game_frames=5)
+             game_frames=5, scene_steps=0)
 
 
 # ------------------------------------------------------------------------------------------------ options
@@ -84,6 +88,7 @@ class Options:
     game_chars: int
     game_frames: int
     quick: bool
+    scene_steps: int = 0
 
 
 def _split(value: str, flag: str) -> list[str]:
@@ -149,7 +154,7 @@ def resolve_options(args) -> Options:
             raise ValueError(f"--chars: {max(chars)} characters of {rig_name} need about {worst / 2**30:.1f} GiB "
                              f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
     return Options(chars, args.chars is not None, solvers, rigs, arches, threads, repeats, float(budget),
-                   int(game_chars), base["game_frames"], bool(args.quick))
+                   int(game_chars), base["game_frames"], bool(args.quick), base["scene_steps"] if game_chars else 0)
 
 
 def _bytes_estimate(rig_name: str) -> int:
@@ -475,6 +480,37 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     )
 
 
+def game_scene(steps: int, name: str = GAME_SCENE) -> dict:
+    """The shipped `name` scene (10,000 humanoids) as the game plays it, FABRIK capped at 4 iterations: after
+    GAME_SCENE_WARMUP world steps, per 60 Hz world step (World.last_step_ms) the characters' IK (dodge targets,
+    solve, limb capsules) and the bullets' step with its hits; only threatened characters move."""
+    from crowd_ik.game import World
+    from crowd_ik.scene import load_scene, scene_with
+
+    scene = scene_with(load_scene(name), **{"solver.method": "fabrik", "solver.iterations": 4})
+    world = World(scene, hud_timings=False)
+    for _ in range(GAME_SCENE_WARMUP):
+        world.step_world()
+    hits0 = world.hits
+    ik, bullets, total, solving, iters, alive = [], [], [], [], [], []
+    for _ in range(steps):
+        world.step_world()
+        ms = world.last_step_ms
+        ik.append(ms["ik"])
+        bullets.append(ms["bullets"])
+        total.append(ms["total"])
+        rep = world.last_report
+        solving.append(float(np.mean(rep.iterations > 0)))
+        iters.append(float(rep.iterations.mean()))
+        alive.append(world.stats["bullets"])
+    frame = _ms_stats(np.asarray(ik) + np.asarray(bullets))
+    return dict(scene=name, n=int(scene.characters.count), steps=steps, warmup_steps=GAME_SCENE_WARMUP,
+                max_iterations=4, ik_ms=_ms_stats(ik), bullets_ms=_ms_stats(bullets), frame_ms=frame,
+                step_ms=_ms_stats(total), solving=float(np.mean(solving)), mean_iterations=float(np.mean(iters)),
+                bullets_alive=float(np.mean(alive)), hits=int(world.hits - hits0), budget_ms=FRAME_MS,
+                fits=bool(frame["p95"] <= FRAME_MS))
+
+
 def _gpu_name() -> str | None:
     """The first CUDA device's name, through the driver API (None when it cannot be read)."""
     import ctypes
@@ -522,6 +558,9 @@ def child_main(spec_path: str, result_path: str) -> int:
         if spec["game_chars"]:
             bar.set_postfix_str(f"game N={spec['game_chars']}")
             game = dict(arch=arch, **game_frames(spec["game_chars"], spec["game_frames"]))
+            if spec.get("scene_steps"):
+                bar.set_postfix_str(f"game scene {GAME_SCENE}")
+                game["scene"] = game_scene(spec["scene_steps"])
             bar.update(1)
     result = dict(arch=arch, requested=spec["arch"],
                   taichi_threads=int(ti.lang.impl.current_cfg().cpu_max_num_threads),
@@ -538,7 +577,8 @@ def run_child(arch: str, cells: list, opts: Options) -> dict:
     with tempfile.TemporaryDirectory(prefix="crowd-ik-bench-") as tmp:
         spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
         spec.write_text(json.dumps(dict(arch=arch, threads=opts.threads, cells=cells, repeats=opts.repeats,
-                                        game_chars=opts.game_chars, game_frames=opts.game_frames)))
+                                        game_chars=opts.game_chars, game_frames=opts.game_frames,
+                                        scene_steps=opts.scene_steps)))
         proc = subprocess.run([sys.executable, "-m", "crowd_ik.bench", "--child", str(spec), str(result)])
         if proc.returncode == 130 or proc.returncode == -2:
             raise KeyboardInterrupt
@@ -701,7 +741,8 @@ def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...], loa
                      loadavg_end=c["loadavg_end"], compile=c["compile"]) for c in children],
         settings=dict(chars=list(opts.chars), solvers=list(opts.solvers), rigs=list(opts.rigs), repeats=opts.repeats,
                       baseline_budget_s=opts.budget, baseline_probe=BASELINE_PROBE, game_chars=opts.game_chars,
-                      game_frames=opts.game_frames, quick=opts.quick, seed=SEED, spacing_m=SPACING),
+                      game_frames=opts.game_frames, game_scene=GAME_SCENE if opts.scene_steps else None,
+                      game_scene_steps=opts.scene_steps, quick=opts.quick, seed=SEED, spacing_m=SPACING),
         workloads=dict(
             chain16="Rig.chain(16, 0.1, dim=3); targets uniform in the ball of 0.9 x reach (1.44 m) around the root; "
                     "tolerance 1e-3 x reach (1.6 mm); max_iterations 100; every repeat starts straight",
@@ -744,8 +785,14 @@ def evaluate_targets(records: list[dict], games: list[dict]) -> list[dict]:
                     out.append(dict(name=f"chain16 {r['solver']} full solves/s of {r['n']:,} characters", arch=arch,
                                     n=r["n"], goal=">= 30", unit="per_s", value=full, met=bool(full >= 30)))
     for g in games:
-        out.append(dict(name=f"game frame (warm FABRIK <= 4 it + bullets), p95 ms", arch=g["arch"], n=g["n"],
-                        goal=f"<= {FRAME_MS:.1f} ms", unit="ms", value=g["frame_ms"]["p95"], met=g["fits"]))
+        out.append(dict(name="game frame, every character's targets moving (warm FABRIK <= 4 it + 4096 bullets), p95 ms",
+                        arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms", value=g["frame_ms"]["p95"],
+                        met=g["fits"]))
+        sc = g.get("scene")
+        if sc:
+            out.append(dict(name=f"game step as played, {sc['scene']} scene (IK <= 4 it + bullets), p95 ms",
+                            arch=g["arch"], n=sc["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms",
+                            value=sc["frame_ms"]["p95"], met=sc["fits"]))
     return out
 
 
@@ -792,7 +839,19 @@ def format_game(g: dict) -> str:
             f"vs {g['budget_ms']:.1f} ms: {'fits' if g['fits'] else 'does NOT fit'} "
             f"\n  ({g['hits']} hits, {g['bullets_alive']:.0f} bullets alive, {g['mean_substeps']:.1f} bullet sub-steps per "
             f"frame on average;\n  joints moved {1e3 * g['limb_step_m']:.1f} mm per frame (median character), "
-            f"{1e3 * g['limb_step_max_m']:.0f} mm at most)")
+            f"{1e3 * g['limb_step_max_m']:.0f} mm at most)" + format_scene(g.get("scene")))
+
+
+def format_scene(sc: dict | None) -> str:
+    if not sc:
+        return ""
+    return (f"\n  as played, {sc['scene']} scene ({sc['n']:,} humanoids, FABRIK <= {sc['max_iterations']} it, "
+            f"{sc['steps']} world steps after {sc['warmup_steps']}): median / p95 IK {sc['ik_ms']['median']:.2f} / "
+            f"{sc['ik_ms']['p95']:.2f} ms + bullets {sc['bullets_ms']['median']:.2f} / {sc['bullets_ms']['p95']:.2f} ms "
+            f"= {sc['frame_ms']['median']:.2f} / {sc['frame_ms']['p95']:.2f} ms vs {sc['budget_ms']:.1f} ms: "
+            f"{'fits' if sc['fits'] else 'does NOT fit'}\n  ({100 * sc['solving']:.1f}% of characters solving, "
+            f"{sc['bullets_alive']:.0f} bullets alive, {sc['hits']} hits; whole world step median "
+            f"{sc['step_ms']['median']:.2f} ms)")
 
 
 def format_targets(targets: list[dict]) -> str:

@@ -140,6 +140,8 @@ class Crowd:
         self._iters = np.zeros(N, np.int32)
         self._stalled = np.zeros(N, np.int32)
         self._scratch: dict[str, object] = {}
+        self._every = np.arange(N, dtype=np.int32)
+        self._roots_host = self._yaw_host = None  # the roots as last set (set_roots redoes FK of the moved ones)
         self.set_roots(grid_positions(N, float(spacing), self.dim))
         self.set_angles(np.zeros(D, np.float32))
 
@@ -174,7 +176,16 @@ class Crowd:
         c, s = np.cos(yaw_arr), np.sin(yaw_arr)
         self._base = (full + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]), -s * off[0] + c * off[2]],
                                       -1)).astype(np.float32)
-        self._fk()
+        # FK of the characters whose root moved or turned (the others' world pose already follows their
+        # rotations: every solver and setter keeps it so); in the game a step moves a few percent of them
+        moved = None
+        if self._roots_host is not None:
+            moved = np.flatnonzero(np.any(full != self._roots_host, axis=1) | (yaw_arr != self._yaw_host))
+        self._roots_host, self._yaw_host = full, yaw_arr.copy()
+        if moved is None or 2 * moved.size > self.n:
+            self._fk()
+        elif moved.size:
+            self._fk(moved.astype(np.int32))
 
     def set_angles(self, a) -> None:
         """Set every joint angle: a (N, DOF) or (DOF,) radians; zeros = the rest pose."""
@@ -198,12 +209,15 @@ class Crowd:
         self.local_rot.from_numpy((arr / norms).astype(np.float32))
         self._fk()
 
-    def _fk(self) -> None:
+    def _fk(self, which: np.ndarray | None = None) -> None:
+        """World pose from the rotations and roots: of every character, or of the characters `which` (K,) int32."""
         from crowd_ik.kernels import fk
 
         ra = self.rig_arrays
+        if which is None:
+            which = self._every
         fk.forward_kinematics(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
-                              self.world_pos, self.world_rot, self.rig.n_joints)
+                              self.world_pos, self.world_rot, which, self.rig.n_joints)
 
     # ---------------------------------------------------------------- state out
     def angles(self) -> np.ndarray:
@@ -322,13 +336,12 @@ class Crowd:
         error = self._error.copy()
         iters = self._iters.copy()
         stalled = self._stalled.astype(bool)
-        d = targets - self._base[:, None, :]
+        status = np.full(self.n, Status.CONVERGED, np.int8)
+        left = np.flatnonzero(error > tolerance)  # the others converged (in a game step, nearly all of them)
+        d = targets[left] - self._base[left, None, :]
         far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
-        unreachable = np.any(far & (w > 0), axis=1)
-        status = np.full(self.n, Status.MAX_ITERATIONS, np.int8)
-        status[stalled] = Status.STALLED
-        status[unreachable] = Status.UNREACHABLE
-        status[error <= tolerance] = Status.CONVERGED
+        status[left] = np.where(np.any(far & (w[left] > 0), axis=1), Status.UNREACHABLE,
+                                np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
         return SolveReport(error=error, iterations=iters, status=status, method=method)
 
     def _solve_fabrik(self, max_iterations: int, tolerance: float, params: dict) -> None:

@@ -621,6 +621,8 @@ class World:
         self.dodges = 0
         self._acc = 0.0
         self._phase_ms = {"simulation": 0.0, "ik": 0.0, "render": 0.0}
+        self.last_step_ms = {"ik": 0.0, "bullets": 0.0, "total": 0.0}  # see step_world
+        self.last_report = None  # the characters' SolveReport of the last world step
         self.totals = {"simulation_ms": 0.0, "ik_ms": 0.0, "render_ms": 0.0, "frames": 0, "rendered": 0}
         self._hud_ms = {"ik": None, "simulation": None}  # smoothed for the HUD
 
@@ -734,14 +736,23 @@ class World:
         self._joints_prev, self._shooter_joints_prev = self._joints, self._shooter_joints
         np.copyto(self._bpos_prev, self._bpos)
         np.copyto(self._sh_c_prev, self._sh_c)
+        t0 = time.perf_counter()
         self._shooters_aim_and_fire()
         self._dodge()
+        t1 = time.perf_counter()
         self._solve_characters()
+        t2 = time.perf_counter()
         self._solve_shooters()
+        t3 = time.perf_counter()
         self._bullets_and_hits()
+        t4 = time.perf_counter()
         self._shards_step()
         self.world_time += DT
         self.steps += 1
+        # milliseconds of this step: the characters' IK (targets, solve, limb capsules), the bullets' step with
+        # its hits, and the whole step
+        self.last_step_ms = dict(ik=1e3 * (t2 - t1), bullets=1e3 * (t4 - t3),
+                                 total=1e3 * (time.perf_counter() - t0))
 
     def simulate(self, seconds: float) -> None:
         """Advance the world alone by `seconds` of world time (whole DT steps; the player and the
@@ -924,8 +935,8 @@ class World:
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)
         sv = self.scene.solver
-        self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
-                         weights=weights, orientations=self._char_orient)
+        self.last_report = self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations,
+                                            tolerance=sv.tolerance, weights=weights, orientations=self._char_orient)
         self._phase_ms["ik"] += 1e3 * (time.perf_counter() - t0)
         self._update_limbs()
 

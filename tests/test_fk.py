@@ -35,6 +35,27 @@ def test_fk_matches_numpy_twin(rig):
     np.testing.assert_allclose(crowd.angles(), a, atol=2e-6)  # Euler round trip inside the limits
 
 
+@pytest.mark.parametrize("moved", [0, 3, 40])  # none, a few (FK of those alone), most (FK of all)
+def test_set_roots_redoes_the_world_pose_of_the_moved_characters(moved):
+    rig = cik.Rig.humanoid()
+    n = 50
+    a, rng = _random_pose(rig, n, 7, scale=0.5)
+    crowd = cik.Crowd(rig, n=n, spacing=1.5)
+    crowd.set_angles(a)
+    roots, yaw = crowd.roots()
+    before = crowd.joint_positions().copy()
+    idx = rng.choice(n, moved, replace=False)
+    roots, yaw = roots.copy(), yaw.copy()
+    roots[idx] += rng.normal(size=(moved, 3)).astype(np.float32)
+    yaw[idx[: moved // 2]] += 0.7  # some turn as well
+    crowd.set_roots(roots, yaw)
+    pos, _ = ref.forward_kinematics(rig, roots.astype(np.float64), yaw.astype(np.float64),
+                                    ref.angles_to_rotations(rig, a))
+    np.testing.assert_allclose(crowd.joint_positions(), pos, atol=2e-5)
+    still = np.setdiff1d(np.arange(n), idx)
+    np.testing.assert_array_equal(crowd.joint_positions()[still], before[still])
+
+
 def test_crowd_2d_matches_planar_homework_chain():
     planar = pytest.importorskip("crowd_ik.planar")
     rig = cik.Rig.chain(4, dim=2)
