@@ -293,10 +293,12 @@ def _ms_stats(values_ms) -> dict:
 # ------------------------------------------------------------------------------------------------ Taichi side (child)
 
 def _ndarray_bytes(obj) -> int:
-    """Bytes held by the ti.ndarrays in `obj` (an ndarray, or a dict / list of them)."""
+    """Bytes held by the ti.ndarrays and NumPy arrays in `obj` (an array, or a dict / list of them)."""
     from taichi.lang._ndarray import Ndarray
     from taichi.lang.util import to_numpy_type
 
+    if isinstance(obj, np.ndarray):
+        return int(obj.nbytes)
     if isinstance(obj, Ndarray):
         elem = int(np.prod(getattr(obj, "element_shape", ()) or (1,)))
         return int(np.prod(obj.shape)) * elem * np.dtype(to_numpy_type(obj.dtype)).itemsize
@@ -308,7 +310,8 @@ def _ndarray_bytes(obj) -> int:
 
 
 def crowd_bytes(crowd) -> int:
-    """Bytes of per-character Taichi state a Crowd holds now (solver scratch included, the shared rig not)."""
+    """Bytes of per-character state a Crowd holds now, Taichi and host arrays (solver scratch included, the shared
+    rig not)."""
     return sum(_ndarray_bytes(v) for k, v in vars(crowd).items() if k != "rig_arrays")
 
 

@@ -123,8 +123,8 @@ class Crowd:
             arr.from_numpy(value)
             self.rig_arrays[key] = arr
         vec3, vec4 = ti.math.vec3, ti.math.vec4
-        self.root_pos = ti.ndarray(vec3, shape=(N,))
-        self.root_yaw = ti.ndarray(ti.f32, shape=(N,))
+        self.root_pos = np.zeros((N, 3), np.float32)  # host arrays, as the solvers' inputs below
+        self.root_yaw = np.zeros(N, np.float32)
         self.local_rot = ti.ndarray(vec4, shape=(N, J))
         self.world_pos = ti.ndarray(vec3, shape=(N, J))
         self.world_rot = ti.ndarray(vec4, shape=(N, J))
@@ -166,11 +166,11 @@ class Crowd:
         pos = _as_array(positions, "positions", (self.n, self.dim))
         full = np.zeros((self.n, 3), np.float32)
         full[:, : self.dim] = pos
-        self.root_pos.from_numpy(full)
         if yaw is not None and self.dim == 2:
             raise ValueError("yaw: planar (dim=2) characters have no yaw")
         yaw_arr = np.zeros(self.n, np.float32) if yaw is None else _as_array(yaw, "yaw", (self.n,))
-        self.root_yaw.from_numpy(yaw_arr)
+        np.copyto(self.root_pos, full)
+        np.copyto(self.root_yaw, yaw_arr)
         # host copy of the root joints' world positions (they never move in a solve): the UNREACHABLE test
         off = self.rig.arrays["offset"][0].astype(np.float64)
         c, s = np.cos(yaw_arr), np.sin(yaw_arr)
@@ -181,7 +181,7 @@ class Crowd:
         moved = None
         if self._roots_host is not None:
             moved = np.flatnonzero(np.any(full != self._roots_host, axis=1) | (yaw_arr != self._yaw_host))
-        self._roots_host, self._yaw_host = full, yaw_arr.copy()
+        self._roots_host, self._yaw_host = full, self.root_yaw.copy()
         if moved is None or 2 * moved.size > self.n:
             self._fk()
         elif moved.size:
@@ -238,7 +238,7 @@ class Crowd:
 
     def roots(self) -> tuple[np.ndarray, np.ndarray]:
         """(positions (N, dim), yaw (N,))."""
-        return self.root_pos.to_numpy()[:, : self.dim], self.root_yaw.to_numpy()
+        return self.root_pos[:, : self.dim].copy(), self.root_yaw.copy()
 
     def joint_positions(self) -> np.ndarray:
         """(N, J, dim) float32 world positions of every joint."""
