@@ -200,6 +200,20 @@ def test_run_reports_the_game_and_targets(tiny_run):
     assert "chain16 fabrik speed-up vs NumPy" in names and any(n.startswith("game frame") for n in names)
 
 
+def test_game_scene_times_the_world_as_played():
+    sc = bench.game_scene(6, name="duel", warmup=30)
+    assert sc["scene"] == "duel" and sc["steps"] == 6 and sc["warmup_steps"] == 30 and sc["max_iterations"] == 4
+    assert 0 < sc["ik_ms"]["median"] and 0 <= sc["bullets_ms"]["median"]
+    assert sc["frame_ms"]["max"] <= sc["ik_ms"]["max"] + sc["bullets_ms"]["max"] + 1e-9
+    assert sc["step_ms"]["median"] >= sc["ik_ms"]["median"]  # the whole step holds both phases
+    assert 0.0 <= sc["solving"] <= 1.0 and sc["fits"] == (sc["frame_ms"]["p95"] <= bench.FRAME_MS)
+    line = bench.format_scene(sc)
+    assert "as played, duel scene" in line and ("fits" in line or "does NOT fit" in line)
+    names = [t["name"] for t in bench.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(p95=1.0), fits=True,
+                                                                 scene=sc)])]
+    assert any(n.startswith("game step as played, duel scene") for n in names)
+
+
 def test_plot_is_a_valid_png(tiny_run):
     _, _, png = tiny_run
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -225,9 +239,12 @@ def test_compare_prints_changes(tiny_run, capsys):
 def test_compare_lines_compute_the_change():
     rec = dict(arch="cpu", rig="chain16", solver="dls", n=1000)
     old = dict(records=[dict(rec, solves_per_s=100.0, speedup=10.0), dict(rec, n=10, solves_per_s=5.0)],
-               game=[dict(arch="cpu", n=10, frame_ms=dict(median=20.0))])
+               game=[dict(arch="cpu", n=10, frame_ms=dict(median=20.0),
+                          scene=dict(scene="stress_10k", frame_ms=dict(p95=20.0)))])
     new = dict(records=[dict(rec, solves_per_s=150.0, speedup=12.0)],
-               game=[dict(arch="cpu", n=10, frame_ms=dict(median=10.0))])
+               game=[dict(arch="cpu", n=10, frame_ms=dict(median=10.0),
+                          scene=dict(scene="stress_10k", frame_ms=dict(p95=15.0)))])
     text = "\n".join(bench.compare_lines(old, new))
     assert "+50.0%" in text and "10.0x -> 12.0x" in text and "only in OLD: cpu chain16 dls N=10" in text
     assert "20.00 ms -> 10.00 ms (-50.0%)" in text
+    assert "stress_10k as played: IK + bullets p95 20.00 ms -> 15.00 ms (-25.0%)" in text
