@@ -792,9 +792,9 @@ def evaluate_targets(records: list[dict], games: list[dict]) -> list[dict]:
                     out.append(dict(name=f"chain16 {r['solver']} full solves/s of {r['n']:,} characters", arch=arch,
                                     n=r["n"], goal=">= 30", unit="per_s", value=full, met=bool(full >= 30)))
     for g in games:
-        out.append(dict(name="game frame, every character's targets moving (warm FABRIK <= 4 it + 4096 bullets), p95 ms",
-                        arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms", value=g["frame_ms"]["p95"],
-                        met=g["fits"]))
+        name = "game frame, every character's targets moving (warm FABRIK <= 4 it + 4096 bullets), p95 ms"
+        out.append(dict(name=name, arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms",
+                        value=g["frame_ms"]["p95"], met=g["fits"]))
         sc = g.get("scene")
         if sc:
             out.append(dict(name=f"game step as played, {sc['scene']} scene (IK <= 4 it + bullets), p95 ms",
@@ -854,8 +854,9 @@ def format_scene(sc: dict | None) -> str:
         return ""
     return (f"\n  as played, {sc['scene']} scene ({sc['n']:,} humanoids, FABRIK <= {sc['max_iterations']} it, "
             f"{sc['steps']} world steps after {sc['warmup_steps']}): median / p95 IK {sc['ik_ms']['median']:.2f} / "
-            f"{sc['ik_ms']['p95']:.2f} ms + bullets {sc['bullets_ms']['median']:.2f} / {sc['bullets_ms']['p95']:.2f} ms "
-            f"= {sc['frame_ms']['median']:.2f} / {sc['frame_ms']['p95']:.2f} ms vs {sc['budget_ms']:.1f} ms: "
+            f"{sc['ik_ms']['p95']:.2f} ms + bullets {sc['bullets_ms']['median']:.2f} / "
+            f"{sc['bullets_ms']['p95']:.2f} ms = {sc['frame_ms']['median']:.2f} / {sc['frame_ms']['p95']:.2f} ms "
+            f"vs {sc['budget_ms']:.1f} ms: "
             f"{'fits' if sc['fits'] else 'does NOT fit'}\n  ({100 * sc['solving']:.1f}% of characters solving, "
             f"{sc['bullets_alive']:.0f} bullets alive, {sc['hits']} hits; whole world step median "
             f"{sc['step_ms']['median']:.2f} ms)")
