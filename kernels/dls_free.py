@@ -26,8 +26,9 @@ to read its start and write its result.
 
 import taichi as ti
 
+from crowd_ik.kernels.fk import joint_fk_local
 from crowd_ik.kernels.local_arrays import get3, get4, put
-from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat, vec3, vec4
+from crowd_ik.kernels.quat import qconj, qmul, qnormalize, yaw_quat, vec3, vec4
 from crowd_ik.reference.dls import FLAT, LAM_CAP, PROGRESS, STALL_AFTER, WINDOW
 
 ndarray = ti.types.ndarray
@@ -122,18 +123,6 @@ def renormalize(q):
     return q * (1.5 - 0.5 * q.dot(q))
 
 
-@ti.func
-def joint_fk(j, p, base_root, offset: ti.template(), rot: ti.template(), pos: ti.template()):
-    """pos[j] from its parent's position and world rotation; returns that parent rotation (base_root at the root)."""
-    base_rot = base_root
-    base_pos = vec3(0.0)
-    if p >= 0:
-        base_rot = get4(rot, p)
-        base_pos = get3(pos, p)
-    put(pos, j, base_pos + qrot(base_rot, offset[j]))
-    return base_rot
-
-
 @ti.kernel
 def dls_solve_free(
     parent: ndarray(dtype=ti.i32, ndim=1),
@@ -182,7 +171,7 @@ def dls_solve_free(
             if kind[j] > 0:
                 q = qnormalize(q)
                 local_rot[i, j] = q
-            put(rot, j, qmul(joint_fk(j, parent[j], base_root, offset, rot, pos), q))
+            put(rot, j, qmul(joint_fk_local(j, parent[j], base_root, offset, rot, pos), q))
         obj = objective(t, get3(pos, 0), get3(pos, k), w, reach)
         f_cur = obj[0]
         perr = obj[1]
@@ -227,7 +216,7 @@ def dls_solve_free(
                 if on_path[j] != 0:
                     d = qmul(d, qexp_series(ti.math.cross(p_eff - get3(pos, j), y)))
                 put(turn, j, d)
-                joint_fk(j, p, base_root, offset, rot, pos)
+                joint_fk_local(j, p, base_root, offset, rot, pos)
                 put(rot, j, renormalize(qmul(d, r_old)))
             new = objective(t, get3(pos, 0), get3(pos, k), w, reach)
             if new[0] < f_cur and not failed:
@@ -249,7 +238,7 @@ def dls_solve_free(
                 lam *= 4.0
                 for j in range(n_joints):
                     put(rot, j, get4(rot_bak, j))
-                    joint_fk(j, parent[j], base_root, offset, rot, pos)
+                    joint_fk_local(j, parent[j], base_root, offset, rot, pos)
             if bad >= STALL_AFTER or lam > LAM_CAP * length:
                 stop = 1
             if accepted >= max_iterations or attempts >= max_attempts or stop == 1 or perr <= tolerance:

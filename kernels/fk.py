@@ -11,6 +11,19 @@ from crowd_ik.kernels.quat import joint_angles, joint_quat, qmul, qrot, yaw_quat
 ndarray = ti.types.ndarray
 
 
+@ti.func
+def joint_fk_local(j, p, base_root, offset: ti.template(), rot: ti.template(), pos: ti.template()):
+    """pos[j] (relative to the character's root point) from its parent p's position and world rotation held in local
+    arrays (kernels/local_arrays.py): p_j = p_parent + R_parent o_j. Returns R_parent (base_root for the root)."""
+    base_rot = base_root
+    base_pos = vec3(0.0)
+    if p >= 0:
+        base_rot = get4(rot, p)
+        base_pos = get3(pos, p)
+    put(pos, j, base_pos + qrot(base_rot, offset[j]))
+    return base_rot
+
+
 @ti.kernel
 def forward_kinematics(
     parent: ndarray(dtype=ti.i32, ndim=1),
@@ -26,9 +39,10 @@ def forward_kinematics(
     """world_pos (N, J, 3), world_rot (N, J, 4) from root_pos (N, 3), root_yaw (N,) and local_rot (N, J, 4), for the
     characters listed in `which` (K,).
 
-    p_j = p_parent + R_parent o_j, R_j = R_parent q_j; each character's transforms are built in local
-    arrays (n_joints = J, a Python int) and written out once (see kernels/local_arrays.py): 1.9 -> 1.5 ms for
-    10,000 humanoids.
+    p_j = p_parent + R_parent o_j, R_j = R_parent q_j, relative to the root point, which is added last (as
+    the solvers do: a character's pose does not depend on where it stands); each character's transforms are
+    built in local arrays (n_joints = J, a Python int) and written out once (see kernels/local_arrays.py):
+    1.9 -> 1.5 ms for 10,000 humanoids.
     """
     for k in range(which.shape[0]):
         i = which[k]
@@ -36,16 +50,9 @@ def forward_kinematics(
         rot = ti.Matrix.zero(ti.f32, n_joints, 4)
         q_root = yaw_quat(root_yaw[i])
         for j in range(n_joints):
-            p = parent[j]
-            base_pos = root_pos[i]
-            base_rot = q_root
-            if p >= 0:
-                base_pos = get3(pos, p)
-                base_rot = get4(rot, p)
-            put(pos, j, base_pos + qrot(base_rot, offset[j]))
-            put(rot, j, qmul(base_rot, local_rot[i, j]))
+            put(rot, j, qmul(joint_fk_local(j, parent[j], q_root, offset, rot, pos), local_rot[i, j]))
         for j in range(n_joints):
-            world_pos[i, j] = get3(pos, j)
+            world_pos[i, j] = root_pos[i] + get3(pos, j)
             world_rot[i, j] = get4(rot, j)
 
 

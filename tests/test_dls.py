@@ -13,6 +13,7 @@ from crowd_ik.reference.dls import (
 )
 from crowd_ik.reference.fk import angles_to_rotations, forward_kinematics, yaw_quat
 from crowd_ik.reference.quat import qconj, qmul, qrot
+from solve_checks import assert_each_alone_gives_the_same_bits
 
 CHAIN16 = dict(n_bones=16, bone_length=0.1, dim=3)
 
@@ -193,15 +194,7 @@ def test_batch_equals_one_at_a_time_wherever_characters_stand():
     yaw = rng.uniform(-3, 3, n).astype(np.float32)
     # targets on a 1/1024 m grid: moved by whole metres they stay exact in float32
     targets = np.round((humanoid_targets(h, n, seed=4) - home[:, None] + roots[:, None]) * 1024) / 1024
-    batch = cik.Crowd(h, n=n)
-    batch.set_roots(roots, yaw)
-    rep = batch.solve(targets, method="dls", max_iterations=60, tolerance=1e-3)
-    for i in range(n):
-        one = cik.Crowd(h, n=1)
-        one.set_roots(roots[i : i + 1], yaw[i : i + 1])
-        r1 = one.solve(targets[i : i + 1], method="dls", max_iterations=60, tolerance=1e-3)
-        np.testing.assert_array_equal(one.rotations()[0], batch.rotations()[i])
-        assert r1.iterations[0] == rep.iterations[i] and r1.error[0] == rep.error[i]
+    batch, _ = assert_each_alone_gives_the_same_bits(h, roots, yaw, targets, "dls", max_iterations=60, tolerance=1e-3)
     # the same characters 100 m away: the kernel works relative to each root, so the same bits
     moved = cik.Crowd(h, n=n)
     shift = np.float32([[64.0, 0.0, -96.0]])

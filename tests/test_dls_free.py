@@ -9,6 +9,7 @@ import crowd_ik as cik
 from crowd_ik.crowd import Status
 from crowd_ik.kernels.dls_free import qexp_series
 from crowd_ik.reference.dls import dls_solve, qexp
+from solve_checks import assert_each_alone_gives_the_same_bits
 
 CHAIN16 = dict(n_bones=16, bone_length=0.1, dim=3)
 
@@ -92,15 +93,8 @@ def test_batch_equals_one_at_a_time():
     roots = np.c_[rng.integers(-30, 30, n), np.zeros(n), rng.integers(-30, 30, n)].astype(np.float32)
     yaw = rng.uniform(-3, 3, n).astype(np.float32)
     targets = np.round((roots[:, None] + ball_targets(n, 1.5, seed=7)[:, None]) * 1024) / 1024
-    batch = cik.Crowd(rig, n=n)
-    batch.set_roots(roots, yaw)
-    rep = batch.solve(targets, method="dls", max_iterations=100, tolerance=1e-4)
-    for i in range(n):
-        one = cik.Crowd(rig, n=1)
-        one.set_roots(roots[i : i + 1], yaw[i : i + 1])
-        r1 = one.solve(targets[i : i + 1], method="dls", max_iterations=100, tolerance=1e-4)
-        np.testing.assert_array_equal(one.rotations()[0], batch.rotations()[i])
-        assert r1.iterations[0] == rep.iterations[i] and r1.error[0] == rep.error[i]
+    _, rep = assert_each_alone_gives_the_same_bits(rig, roots, yaw, targets, "dls", max_iterations=100, tolerance=1e-4)
+    assert np.all(rep.iterations > 0)  # each one solved something
 
 
 def test_zero_weight_characters_do_not_move_and_others_do():
