@@ -221,6 +221,9 @@ class BulletPool:
         self._threat_out = None
         self._substeps_out = np.zeros(1, np.int32)  # written by prepare_limbs (host memory)
         self.last_substeps = 0
+        # slots [0, _used) have been alive at some time; spawn takes the lowest free slots, so this stays
+        # near the largest number of bullets in flight at once, and the per-step kernels loop only over it
+        self._used = 0
 
     # -- host views ---------------------------------------------------------------------------
 
@@ -290,6 +293,7 @@ class BulletPool:
         if n:
             kp.spawn_bullets(slots, np.ascontiguousarray(origins[:n]), np.ascontiguousarray(velocities[:n]),
                              self.pos, self.vel, self.age, self.alive, self.prev)
+            self._used = max(self._used, int(slots.max()) + 1)
         return slots, int(origins.shape[0] - n)
 
     def step(self, dt: float, gravity: float = 9.81, drag: float = 0.0, lifetime: float = 3.0) -> None:
@@ -349,7 +353,7 @@ class BulletPool:
         g = self.threat_grid
         for _ in range(2):  # a second launch only when the grid's entry list had to grow
             kp.threat_pass(points, char_alive, self.pos, self.vel, self.alive, horizon, reach, *g.geometry,
-                           g.cell_count, g.cell_start, g.cursor, g.total, g.entries, *self._threat_out)
+                           g.cell_count, g.cell_start, g.cursor, g.total, g.entries, *self._threat_out, self._used)
             if not g.grow(int(g.total[0])):
                 break
         return Threats(*(o.copy() for o in self._threat_out))
@@ -369,7 +373,7 @@ class BulletPool:
             kp.prepare_limbs(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
                              owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
                              self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
-                             grid.total, grid.entries)
+                             grid.total, grid.entries, self._used)
             if not grid.grow(int(grid.total[0])):
                 break
         return min(max(int(out[0]), 1), max_substeps)
@@ -440,7 +444,7 @@ class BulletPool:
                                    lifetime, self.far, self.radius, a0, b0, a1, b1, s, radii, owner, char_alive,
                                    *grid.geometry, grid.cell_start, grid.entries, j, substeps, self.hit_key,
                                    self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
-                                   self.hit_bullet, int(last), *out)
+                                   self.hit_bullet, int(last), *out, self._used)
                 continue
             kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
                                char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,

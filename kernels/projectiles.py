@@ -643,13 +643,15 @@ def threat_pass(
     threat_miss: ndarray(ndim=1),
     threat_point: ndarray(dtype=vec3, ndim=1),
     threat_dir: ndarray(dtype=vec3, ndim=1),
+    n_slots: ti.i32,
 ):
     """predict_bullets + build_grid of the live bullets' paths pos -> pos + vel horizon grown by
     reach (segment id = slot) + find_threats, in one launch. Valid when total[0] <= entries.shape[0]
-    afterwards; otherwise the caller grows entries and launches again."""
+    afterwards; otherwise the caller grows entries and launches again. Slots n_slots and up were never
+    used (BulletPool keeps that mark), so the loops over bullets stop there."""
     for c in range(cell_count.shape[0]):
         cell_count[c] = 0
-    for p in range(pos.shape[0]):
+    for p in range(n_slots):
         if alive[p] != 0:
             q0 = pos[p]
             q1 = q0 + vel[p] * horizon
@@ -657,7 +659,7 @@ def threat_pass(
             count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 0, cell_count, cell_count)  # unmasked: no mask
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
-    for p in range(pos.shape[0]):
+    for p in range(n_slots):
         if alive[p] != 0:
             q0 = pos[p]
             q1 = q0 + vel[p] * horizon
@@ -700,16 +702,18 @@ def prepare_limbs(
     cursor: ndarray(dtype=ti.i32, ndim=1),
     total: ndarray(dtype=ti.i32, ndim=1),
     entries: ndarray(dtype=ti.i32, ndim=1),
+    n_slots: ti.i32,
 ):
     """Everything a step's collisions need before the bullets move, in one launch:
     mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
     count_substeps over the reachable owners' limbs (into substeps[0], zeroed by the caller) +
     build_grid of those limbs into the marked cells + reset_hits. The grid is valid when total[0]
-    <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again."""
+    <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again. Bullet loops stop
+    at n_slots (slots beyond were never used)."""
     for c in range(mask.shape[0]):
         mask[c] = 0
         cell_count[c] = 0
-    for p in range(pos.shape[0]):
+    for p in range(n_slots):
         mark_bullet(p, pos, vel, alive, dt, pad, ox, oz, cell, nx, nz, mask)
         bullet_char[p] = -1
     for n in range(owner_box.shape[0]):
@@ -769,16 +773,18 @@ def advance_bullets(
     pos_out: ndarray(dtype=vec3, ndim=1),
     vel_out: ndarray(dtype=vec3, ndim=1),
     alive_out: ndarray(dtype=ti.i32, ndim=1),
+    n_slots: ti.i32,
 ):
     """One sub-step in one launch: integrate_bullets (dt) then collide_bullets for each bullet (a
     bullet's collision reads only its own new segment), then apply_hits; with export != 0 also
-    export_bullets into pos_out, vel_out, alive_out."""
-    for p in range(pos.shape[0]):
+    export_bullets into pos_out, vel_out, alive_out. Only slots below n_slots (the others were never used: their
+    exported values stay as they are, dead)."""
+    for p in range(n_slots):
         integrate_bullet(p, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
         collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, s, radius, owner, char_alive, ox, oz, cell,
                        nx, nz, cell_start, entries, substep, n_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
                        bullet_point)
-    for p in range(pos.shape[0]):
+    for p in range(n_slots):
         apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)
         if export != 0:
             pos_out[p] = pos[p]

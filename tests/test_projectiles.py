@@ -464,6 +464,34 @@ def test_fused_advance_equals_the_phase_kernels():
         np.testing.assert_array_equal(x, y)
 
 
+def test_a_large_pool_steps_only_its_used_slots_and_gives_the_same_step():
+    # the per-step kernels loop over the slots that were ever used (spawn takes the lowest free ones)
+    start, end, a, b, radius, owner, char_alive = _scene(17, p=60)
+    vel = _f32((end - start) * 60.0)
+    P = len(start)
+    boxes = _owner_boxes(a, b, a, b, radius, owner, len(char_alive))
+    runs = []
+    for size in (P, 8 * P):
+        pool = BulletPool(size, bounds=(-5, -5, 5, 5))
+        pool.spawn(start, vel)
+        out = np.zeros((size, 3), np.float32), np.zeros((size, 3), np.float32), np.zeros(size, np.int32)
+        hits = pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, owner, char_alive, len(char_alive),
+                            owner_boxes=boxes, export_to=out)
+        threats = pool.threats(_f32(a[::7]), np.ones(len(a[::7]), np.int32), 0.5, 0.3)
+        runs.append((hits, pool.struck()[:P], pool.positions()[:P], out[0][:P], threats.bullet))
+        assert not np.any(out[2][P:]) and not np.any(pool.alive_mask()[P:])
+    assert len(runs[0][0].chars) > 3 and np.any(runs[0][4] >= 0)
+    for x, y in zip(runs[0][0] + runs[0][1:], runs[1][0] + runs[1][1:]):
+        np.testing.assert_array_equal(x, y)
+    # bullets spawned later above the old mark move too
+    pool.kill(np.arange(P))
+    slots, _ = pool.spawn(np.zeros((P + 5, 3)) + [0.0, 1.0, 0.0], np.tile([[1.0, 0.0, 0.0]], (P + 5, 1)))
+    assert slots.max() == P + 4
+    pool.advance(DT, 0.0, 0.0, 3.0, a, b, radius, owner, np.zeros_like(char_alive), len(char_alive),
+                 owner_boxes=boxes)
+    np.testing.assert_allclose(pool.positions()[slots, 0], DT, rtol=1e-5)
+
+
 def test_threats_match_twin():
     rng = np.random.default_rng(9)
     n, p = 40, 100
