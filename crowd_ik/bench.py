@@ -456,7 +456,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         t2 = time.perf_counter()
         pool.spawn(origins, velocities)
         step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, *caps[now], radii, owner, alive, n,
-                                 prev_a=caps[1 - now][0], prev_b=caps[1 - now][1], owner_boxes=box)
+                                 prev_a=caps[1 - now][0], prev_b=caps[1 - now][1], owner_boxes=box, owner_stride=B)
         t3 = time.perf_counter()
         # how far the limbs moved this frame: per character its largest joint step, metres
         step = np.linalg.norm(joints[now] - joints[1 - now], axis=2).max(axis=1)

@@ -315,7 +315,7 @@ class BulletPool:
 
     def advance(self, dt: float, gravity: float, drag: float, lifetime: float, capsules_a, capsules_b, radii,
                 owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16,
-                owner_boxes=None, export_to=None) -> Hits:
+                owner_boxes=None, export_to=None, owner_stride: int = 0) -> Hits:
         """step + collide, sub-stepped: k = substep_count(prev pose, pose) sub-steps of dt / k.
 
         prev_a, prev_b (C, 3): the limbs at the previous step (None: the limbs did not move, k = 1).
@@ -324,7 +324,9 @@ class BulletPool:
         x_min, z_min, x_max, z_max of each character's limbs in both poses grown by their radii;
         characters whose box no bullet can reach this step are left out (of sub-step counting too),
         and the preparation is one launch (prepare_limbs); each sub-step is one launch (advance_bullets). export_to:
-        (pos, vel, alive) host arrays to receive export() at the end of the step, or None.
+        (pos, vel, alive) host arrays to receive export() at the end of the step, or None. owner_stride
+        S > 0 (with owner_boxes) says that owner[c] == c // S (each character's S capsules in one block,
+        n_chars * S of them): the preparation then visits only the reachable characters' blocks.
         """
         args = (_positive("dt", dt), _non_negative("gravity", gravity), _non_negative("drag", drag),
                 _positive("lifetime", lifetime))
@@ -332,7 +334,8 @@ class BulletPool:
         if prev_a is None or prev_b is None:
             prev_a, prev_b = capsules_a, capsules_b
         return self._run(args, prev_a, prev_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars,
-                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes, export_to=export_to)
+                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes, export_to=export_to,
+                         owner_stride=owner_stride)
 
     def threats(self, points, char_alive, horizon: float, reach: float) -> Threats:
         """Per character, the bullet that first passes within `reach` m of points (N, 3) within `horizon` s.
@@ -360,7 +363,8 @@ class BulletPool:
 
     # -- internals ----------------------------------------------------------------------------
 
-    def _prepare_limbs(self, dt, a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, max_substeps) -> int:
+    def _prepare_limbs(self, dt, a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, max_substeps,
+                       owner_stride) -> int:
         """One launch of prepare_limbs (again if the limb grid had to grow); returns the sub-steps."""
         from crowd_ik.kernels import projectiles as kp
 
@@ -373,7 +377,7 @@ class BulletPool:
             kp.prepare_limbs(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
                              owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
                              self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
-                             grid.total, grid.entries, self._used)
+                             grid.total, grid.entries, self._used, owner_stride)
             if not grid.grow(int(grid.total[0])):
                 break
         return min(max(int(out[0]), 1), max_substeps)
@@ -388,7 +392,7 @@ class BulletPool:
             self._n_chars = n_chars
 
     def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16,
-             owner_boxes=None, export_to=None) -> Hits:
+             owner_boxes=None, export_to=None, owner_stride=0) -> Hits:
         from crowd_ik.kernels import projectiles as kp
 
         if isinstance(n_chars, bool) or not isinstance(n_chars, (int, np.integer)) or n_chars < 1:
@@ -407,6 +411,13 @@ class BulletPool:
         if isinstance(owner, np.ndarray) and n_caps and (owner.min() < 0 or owner.max() >= n_chars):
             bad = owner[(owner < 0) | (owner >= n_chars)][0]
             raise ValueError(f"owner: expected character ids in [0, {n_chars}) (got {bad})")
+        if isinstance(owner_stride, bool) or not isinstance(owner_stride, (int, np.integer)) or owner_stride < 0:
+            raise ValueError(f"owner_stride: expected an integer >= 0 (got {owner_stride!r})")
+        if owner_stride and n_caps != n_chars * owner_stride:
+            raise ValueError(f"owner_stride: {n_chars} characters x {owner_stride} capsules != {n_caps} capsules")
+        if owner_stride and isinstance(owner, np.ndarray) and not np.array_equal(owner,
+                                                                                 np.arange(n_caps) // owner_stride):
+            raise ValueError(f"owner_stride: owner[c] is not c // {owner_stride} for every capsule")
         if owner_boxes is not None and not _is_ndarray(owner_boxes):
             owner_boxes = np.ascontiguousarray(owner_boxes, dtype=np.float32)
             if owner_boxes.shape != (n_chars, 4) or not np.all(np.isfinite(owner_boxes)):
@@ -423,7 +434,7 @@ class BulletPool:
         fused = step_args is not None and owner_boxes is not None
         if fused:
             substeps = self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes,
-                                           max_substeps)
+                                           max_substeps, int(owner_stride) if n_caps else 0)
             char_alive = self._reachable
         else:
             if step_args is not None:  # only the cells the bullets can reach this step take limbs

@@ -531,7 +531,7 @@ class World:
         self._targets_buf = np.zeros((N, E, 3), np.float32)
         self._roots_buf = np.zeros((N, 3), np.float32)
         # limbs for the bullet pool, kept in Taichi ndarrays: capsule n * B + k is character n's bone k
-        self._owner = _ndarray(np.repeat(np.arange(N, dtype=np.int32), B))
+        self._owner = _ndarray(np.repeat(np.arange(N, dtype=np.int32), B))  # capsule c is character c // B
         self._cap_radius = _ndarray(np.tile(b.bone_radius, N))
         self._bone_parent = _ndarray(b.bone_parent.astype(np.int32))
         self._bone_radius = _ndarray(b.bone_radius)
@@ -962,7 +962,8 @@ class World:
         prev_a, prev_b = self._caps[1 - self._caps_now]
         hits = self.pool.advance(DT, bl.gravity, bl.drag, bl.lifetime, a, b, self._cap_radius, self._owner,
                                  self.alive.astype(np.int32), self.n, prev_a=prev_a, prev_b=prev_b,
-                                 owner_boxes=self._owner_box, export_to=(self._bpos, self._bvel, self._balive_i32))
+                                 owner_boxes=self._owner_box, export_to=(self._bpos, self._bvel, self._balive_i32),
+                                 owner_stride=self.body.n_bones)
         np.not_equal(self._balive_i32, 0, out=self._balive)
         if len(hits.chars):
             chars = hits.chars.astype(np.intp)

@@ -671,6 +671,24 @@ def threat_pass(
                         entries, threat_bullet, threat_time, threat_miss, threat_point, threat_dir)
 
 
+@ti.func
+def count_limb(c, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), radius: ti.template(),
+               owner: ti.template(), reachable: ti.template(), substeps: ti.template(), ox, oz, cell, nx, nz,
+               mask: ti.template(), cell_count: ti.template()):
+    """Limb c of a reachable owner: its sub-step count, and its swept box counted into the marked cells."""
+    limb_substeps(c, a0, b0, a1, b1, radius, owner, reachable, substeps)
+    x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
+    count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cell_count)
+
+
+@ti.func
+def fill_limb(c, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), radius: ti.template(),
+              ox, oz, cell, nx, nz, mask: ti.template(), cursor: ti.template(), entries: ti.template()):
+    """Limb c of a reachable owner into the marked cells its swept box covers."""
+    x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
+    fill_box(c, x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cursor, entries)
+
+
 @ti.kernel
 def prepare_limbs(
     pos: ndarray(dtype=vec3, ndim=1),
@@ -703,13 +721,16 @@ def prepare_limbs(
     total: ndarray(dtype=ti.i32, ndim=1),
     entries: ndarray(dtype=ti.i32, ndim=1),
     n_slots: ti.i32,
+    stride: ti.i32,
 ):
     """Everything a step's collisions need before the bullets move, in one launch:
     mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
     count_substeps over the reachable owners' limbs (into substeps[0], zeroed by the caller) +
     build_grid of those limbs into the marked cells + reset_hits. The grid is valid when total[0]
     <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again. Bullet loops stop
-    at n_slots (slots beyond were never used)."""
+    at n_slots (slots beyond were never used). stride > 0 says that capsule c belongs to owner c // stride
+    (each owner's capsules in one block): the limb loops then visit the reachable owners' blocks only,
+    instead of every capsule to look up its owner."""
     for c in range(mask.shape[0]):
         mask[c] = 0
         cell_count[c] = 0
@@ -720,17 +741,27 @@ def prepare_limbs(
         reachable[n] = reachable_owner(n, owner_box, char_alive, ox, oz, cell, nx, nz, mask)
         hit_key[n] = ti.i64(NO_HIT)
         hit_bullet[n] = -1
-    for c in range(a0.shape[0]):
+    # the reachable owners' limbs, by capsule (any layout) or by owner block (stride > 0); in each pair of
+    # loops one runs zero times
+    by_capsule = a0.shape[0] if stride == 0 else 0
+    by_owner = owner_box.shape[0] if stride > 0 else 0
+    for c in range(by_capsule):
         if reachable[owner[c]] != 0:
-            limb_substeps(c, a0, b0, a1, b1, radius, owner, reachable, substeps)
-            x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
-            count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cell_count)
+            count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask, cell_count)
+    for n in range(by_owner):
+        if reachable[n] != 0:
+            for c in range(n * stride, (n + 1) * stride):
+                count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask,
+                           cell_count)
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
-    for c in range(a0.shape[0]):
+    for c in range(by_capsule):
         if reachable[owner[c]] != 0:
-            x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
-            fill_box(c, x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cursor, entries)
+            fill_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cursor, entries)
+    for n in range(by_owner):
+        if reachable[n] != 0:
+            for c in range(n * stride, (n + 1) * stride):
+                fill_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cursor, entries)
 
 
 @ti.kernel

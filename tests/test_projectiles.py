@@ -492,6 +492,33 @@ def test_a_large_pool_steps_only_its_used_slots_and_gives_the_same_step():
     np.testing.assert_allclose(pool.positions()[slots, 0], DT, rtol=1e-5)
 
 
+def test_owner_stride_visits_the_same_limbs_by_owner_block():
+    # capsule c of _scene belongs to character c // 4: with owner_stride=4 the preparation walks the reachable
+    # characters' blocks instead of every capsule, and the step is the same
+    start, end, a, b, radius, owner, char_alive = _scene(18, p=200)
+    n = len(char_alive)
+    vel = _f32((end - start) * 60.0)
+    prev_a, prev_b = a.copy(), b.copy()
+    prev_a[::5, 0] -= 0.3  # some limbs moved: several sub-steps
+    boxes = _owner_boxes(prev_a, prev_b, a, b, radius, owner, n)
+    runs = []
+    for stride in (0, 4):
+        pool = BulletPool(len(start), bounds=(-5, -5, 5, 5), capsule_capacity=4)  # the limb grid must grow
+        pool.spawn(start, vel)
+        hits = pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, owner, char_alive, n, prev_a=prev_a, prev_b=prev_b,
+                            owner_boxes=boxes, owner_stride=stride)
+        runs.append((pool.last_substeps, hits, pool.struck(), pool.positions(), pool.alive_mask()))
+    assert runs[0][0] > 1 and len(runs[0][1].chars) > 3
+    assert runs[0][0] == runs[1][0]
+    for x, y in zip(runs[0][1] + runs[0][2:], runs[1][1] + runs[1][2:]):
+        np.testing.assert_array_equal(x, y)
+    for stride, bad_owner, match in ((3, owner, "30 characters x 3"), (4, owner[::-1].copy(), "is not c // 4"),
+                                     (-1, owner, "integer >= 0")):
+        with pytest.raises(ValueError, match=match):
+            pool.advance(DT, 9.81, 0.0, 3.0, a, b, radius, bad_owner, char_alive, n, owner_boxes=boxes,
+                         owner_stride=stride)
+
+
 def test_threats_match_twin():
     rng = np.random.default_rng(9)
     n, p = 40, 100
