@@ -359,8 +359,8 @@ class Crowd:
             )
             return
         fabrik.fabrik_solve(
-            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
-            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
+            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
+            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient, work, acc_w,
             max_iterations, tolerance, int(not (self.rig.constraint_free and self._orient_zero)),
@@ -372,6 +372,7 @@ class Crowd:
         """Damped least squares with LM damping and a joint-limit active set (kernels/dls.py), one launch."""
         from crowd_ik.kernels import dls
         from crowd_ik.reference.dls import dls_settings
+        from crowd_ik.reference.quat import limit_pseudo_angles
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
         if self._dls_free_applies(params):
@@ -386,13 +387,15 @@ class Crowd:
         small = {}  # per-solve settings: a few dozen numbers
         for name, value in (("eff_lim", settings["eff_lim"]), ("joint_w", joint_w), ("jmode", settings["jmode"]),
                             ("lo", settings["lo32"]), ("hi", settings["hi32"]),
+                            ("lim_p", limit_pseudo_angles(settings["lo32"], settings["hi32"])),
                             ("com_w", settings["com_w"].astype(np.float32)),
                             ("support_w", settings["support_w"].astype(np.float32))):
             small[name] = self.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
             small[name].from_numpy(value)
         dls.dls_solve(
-            ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], ra["cone"],
-            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], ra["eff_has_axis"],
+            ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
+            small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+            ra["eff_axis"], ra["eff_has_axis"],
             small["eff_lim"], small["joint_w"], small["com_w"], small["support_w"], self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights, self._orient,
             self.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
@@ -446,8 +449,8 @@ class Crowd:
         reach = self.scratch("ccd_reach", ti.f32, (rig.n_effectors,))
         reach.from_numpy(rig.reach.astype(np.float32))
         ccd.ccd_solve(
-            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
-            ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, reach,
+            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
+            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, reach,
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient,
             self.scratch("ccd_rel_t", ti.math.vec3, (self.n, rig.n_effectors)),

@@ -22,6 +22,8 @@ from functools import cached_property
 
 import numpy as np
 
+from crowd_ik.reference.quat import limit_pseudo_angles
+
 # Joint kinds and their DOF counts; the DOF count doubles as the kind code the kernels read.
 KINDS = {"fixed": 0, "hinge": 1, "universal": 2, "ball": 3}
 
@@ -279,7 +281,8 @@ class Rig:
         """The rig as C-contiguous arrays for the kernels (float32 and int32).
 
         parent (J,), offset (J,3), kind (J,) 0 fixed/1 hinge/2 universal/3 ball, axes (J,2,3),
-        dof_start (J,), lo/hi (DOF+1,) (one padding entry so a DOF-less rig still has an array),
+        dof_start (J,), lo/hi (DOF+1,) (one padding entry so a DOF-less rig still has an array), lim_p (DOF+1, 2)
+        their pseudo-angles (reference.quat.limit_pseudo_angles),
         cone (J,) (0 = none), eff_joint (E,), eff_axis (E,3), eff_has_axis (E,), radius (J,).
         """
         J, D = self.n_joints, self.n_dof
@@ -297,6 +300,7 @@ class Rig:
             dof_start=self.dof_start.astype(np.int32),
             lo=np.concatenate([np.clip(lo, -big, big), [0.0]]).astype(np.float32),
             hi=np.concatenate([np.clip(hi, -big, big), [0.0]]).astype(np.float32),
+            lim_p=limit_pseudo_angles(np.append(lo, 0.0), np.append(hi, 0.0)),
             cone=np.array([j.cone or 0.0 for j in self.joints], np.float32),
             eff_joint=np.array([e.joint for e in self.effectors], np.int32),
             eff_axis=np.array([e.axis or (0.0, 0.0, 0.0) for e in self.effectors], np.float32),

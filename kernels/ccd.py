@@ -188,7 +188,8 @@ def straighten_step(k, q, ax, u, v):
 
 @ti.func
 def constrain_joint(i, j, q, offset: ti.template(), kind: ti.template(), axes: ti.template(), lo: ti.template(),
-                    hi: ti.template(), cone: ti.template(), dof_start: ti.template(), child_start: ti.template(),
+                    hi: ti.template(), lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                    child_start: ti.template(),
                     child_list: ti.template(), below: ti.template(), weights: ti.template()):
     """q clamped to joint j's limits; the cone limits the first child bone leading to an active effector."""
     first_bone = vec3(0.0)
@@ -198,12 +199,12 @@ def constrain_joint(i, j, q, offset: ti.template(), kind: ti.template(), axes: t
         if found == 0 and joint_active(i, c, below, weights) != 0:
             first_bone = offset[c].normalized()
             found = 1
-    return constrain_rotation(kind[j], axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
+    return constrain_rotation(kind[j], axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
 
 
 @ti.func
 def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
-              lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
+              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
               child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
@@ -262,8 +263,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                 q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
             else:
                 q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
-            q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list, below,
-                                weights)
+            q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                                below, weights)
             # carry the effectors below j along with its turn (world turn = base q_new q_old^-1 base^-1)
             turn = qmul(qmul(base_rot, qmul(q, qconj(local_rot[i, j]))), inv_base)
             for e in range(eff_joint.shape[0]):
@@ -288,8 +289,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                     cur = qrot(q, eff_axis[e])
                     want = qrot(qconj(base_rot), orient[i, e])
                     q = qnormalize(qmul(swing(cur, want), q))
-                    q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list,
-                                        below, weights)
+                    q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
+                                        child_list, below, weights)
                     local_rot[i, j] = q
                     world_rot[i, j] = qmul(base_rot, q)
                     fk_after(i, j, parent, offset, local_rot, world_pos, world_rot)
@@ -303,6 +304,7 @@ def ccd_solve(
     axes: ndarray(dtype=vec3, ndim=2),
     lo: ndarray(ndim=1),
     hi: ndarray(ndim=1),
+    lim_p: ndarray(ndim=2),
     cone: ndarray(ndim=1),
     dof_start: ndarray(dtype=ti.i32, ndim=1),
     child_start: ndarray(dtype=ti.i32, ndim=1),
@@ -349,7 +351,7 @@ def ccd_solve(
         flat = 0
         stop = 0
         while it < max_iterations and err > tolerance and stop == 0:
-            ccd_sweep(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start, child_list, eff_joint,
+            ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list, eff_joint,
                       eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos, weights,
                       orient)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)

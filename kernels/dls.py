@@ -465,7 +465,8 @@ def freeze_outward(i, parent: ti.template(), kind: ti.template(), jmode: ti.temp
 
 @ti.func
 def apply_step(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), jmode: ti.template(),
-               axes: ti.template(), lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
+               axes: ti.template(), lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+               dof_start: ti.template(),
                child_start: ti.template(), child_list: ti.template(), root_yaw: ti.template(),
                local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(), work: ti.template(),
                qwork: ti.template()):
@@ -495,7 +496,7 @@ def apply_step(i, parent: ti.template(), offset: ti.template(), kind: ti.templat
                 base_rot = parent_rot(i, j, parent, root_yaw, world_rot)
                 q = qnormalize(qmul(qexp(qrot(qconj(base_rot), wv)), q))
             if k == 3 and cone[j] > 0.0:
-                q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, s, cone[j],
+                q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, s, cone[j],
                                        first_bone(j, offset, child_start, child_list))
                 if by_angle:
                     e = quat_to_euler_xyz(q)
@@ -560,6 +561,7 @@ def dls_solve(
     axes: ndarray(dtype=vec3, ndim=2),
     lo: ndarray(ndim=1),
     hi: ndarray(ndim=1),
+    lim_p: ndarray(ndim=2),
     cone: ndarray(ndim=1),
     dof_start: ndarray(dtype=ti.i32, ndim=1),
     child_start: ndarray(dtype=ti.i32, ndim=1),
@@ -631,7 +633,7 @@ def dls_solve(
         go = 1
         while go == 1:
             # one call site per phase (every ti.func is inlined: fewer sites, faster compiles)
-            apply_step(i, parent, offset, kind, jmode, axes, lo, hi, cone, dof_start, child_start, child_list,
+            apply_step(i, parent, offset, kind, jmode, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                        root_yaw, local_rot, rel_pos, world_rot, work, qwork)
             if first == 1:  # the projected start pose is the reference of the velocity term
                 copy_pose(i, THETA, THETA0, -1, Q_START, parent, local_rot, work, qwork)

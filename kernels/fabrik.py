@@ -174,9 +174,9 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
 
 @ti.func
 def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.template(), offset: ti.template(),
-                   lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
-                   child_start: ti.template(), child_list: ti.template(), local_rot: ti.template(), work: ti.template(),
-                   acc_w: ti.template()):
+                   lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+                   dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                   local_rot: ti.template(), work: ti.template(), acc_w: ti.template()):
     """Ball joint j above a hinge c above joint g (hip-knee-ankle, shoulder-elbow-wrist): put the limb's end exactly
     on its proposed position. The end is g, or a rigid leaf past g (the hand past the wrist), carried at g's
     current angles; g's place is then written back as its proposal. Returns (rotation of j, 1) or (q, 0) when
@@ -263,7 +263,7 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
                             cand = out
                             if which == 1:
                                 cand = poled
-                            clamped = constrain_rotation(3, ax, ax, cand, lo, hi, dof_start[j], cone[j], first)
+                            clamped = constrain_rotation(3, ax, ax, cand, lo, hi, lim_p, dof_start[j], cone[j], first)
                             off[which] = (qrot(clamped, v) - want).norm()
                         if off[1] <= off[0] + 1e-4:
                             out = poled
@@ -275,7 +275,8 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
 
 @ti.func
 def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
-                          lo: ti.template(), hi: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                          lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+                          dof_start: ti.template(),
                           child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
                           eff_axis: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
                           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
@@ -326,8 +327,8 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                             first_bone = offset[child_list[cc]].normalized()
                 limb = 0
                 if n_active == 1 and k == 3:
-                    q, limb = two_bone_swing(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, cone, dof_start,
-                                             child_start, child_list, local_rot, work, acc_w)
+                    q, limb = two_bone_swing(i, j, q, inv_base, pos_j, kind, axes, offset, lo, hi, lim_p, cone,
+                                             dof_start, child_start, child_list, local_rot, work, acc_w)
                 rounds = 1 if n_active <= 1 else SWING_ROUNDS
                 for _ in range(rounds):
                     if n_active > 0 and limb == 0:
@@ -339,7 +340,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             for e in range(eff_joint.shape[0] if use_orient else 0):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
                     q = align_axis(k, axes[j, 0], axes[j, 1], q, eff_axis[e], qrot(inv_base, orient[i, e]))
-            q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, dof_start[j], cone[j], first_bone)
+            q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
             local_rot[i, j] = q
         world_rot[i, j] = qmul(base_rot, q)
 
@@ -352,6 +353,7 @@ def fabrik_solve(
     axes: ndarray(dtype=vec3, ndim=2),
     lo: ndarray(ndim=1),
     hi: ndarray(ndim=1),
+    lim_p: ndarray(ndim=2),
     cone: ndarray(ndim=1),
     dof_start: ndarray(dtype=ti.i32, ndim=1),
     child_start: ndarray(dtype=ti.i32, ndim=1),
@@ -409,7 +411,7 @@ def fabrik_solve(
             # one call site (each inlined copy of this sweep costs ~20 s of compile time): every iteration of
             # a constrained rig, or once after the last iteration of a constraint-free one
             if (iterate and recover_each_iteration) or (not iterate and not recover_each_iteration and it > 0):
-                recover_and_constrain(i, parent, offset, kind, axes, lo, hi, cone, dof_start, child_start,
+                recover_and_constrain(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
                                       child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
                                       world_rot, weights, orient, work, acc_w, use_orient)
             if iterate:

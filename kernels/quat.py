@@ -85,6 +85,35 @@ def quat_to_euler_xyz(q):
 
 
 @ti.func
+def pseudo_angle(x, y):
+    """A stand-in for atan2(y, x) with the same order on (-pi, pi] and range (-2, 2], without trigonometry."""
+    p = y / ti.max(ti.abs(x) + ti.abs(y), 1e-30)
+    out = p
+    if x < 0.0:
+        out = 2.0 - p if y >= 0.0 else -2.0 - p
+    return out
+
+
+@ti.func
+def euler_xyz_inside(q, lim_p: ti.template(), s):
+    """Whether quat_to_euler_xyz(q) lies inside the box of DOFs s..s+2 (lim_p: their limits' pseudo-angles),
+    decided on pseudo-angles of the matrix entries the angles are taken from (b = atan2(r02, cos b) as
+    cos b = |(r12, r22)|); False near gimbal lock, where only the full decomposition decides."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    r02 = 2.0 * (x * z + y * w)
+    r12 = 2.0 * (y * z - x * w)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    r01 = 2.0 * (x * y - z * w)
+    r00 = 1.0 - 2.0 * (y * y + z * z)
+    p = vec3(pseudo_angle(r22, -r12), pseudo_angle(ti.sqrt(r12 * r12 + r22 * r22), r02), pseudo_angle(r00, -r01))
+    inside = ti.abs(r02) < 0.9999995
+    for d in ti.static(range(3)):
+        if p[d] < lim_p[s + d, 0] or p[d] > lim_p[s + d, 1]:
+            inside = False
+    return inside
+
+
+@ti.func
 def wrap_angle(t):
     """Wrap to (-pi, pi]."""
     return t - 2.0 * PI * ti.floor((t + PI) / (2.0 * PI))
@@ -94,6 +123,22 @@ def wrap_angle(t):
 def twist_angle(q, axis):
     """Angle of the twist of q about a unit axis (swing-twist decomposition), in (-pi, pi]."""
     return wrap_angle(2.0 * ti.atan2(q.xyz.dot(axis), q.w))
+
+
+@ti.func
+def twist_part(q, axis):
+    """The twist of q about a unit axis as a unit quaternion with w >= 0 (axis_angle(axis, twist_angle(q, axis))
+    without trigonometry), the pseudo_angle of that twist angle, and whether q has a twist to take (False when
+    q turns the axis half a turn, where twist_angle falls back to 0)."""
+    s = q.xyz.dot(axis)
+    w = q.w
+    n2 = s * s + w * w
+    if w < 0.0 or (w == 0.0 and s < 0.0):
+        s, w = -s, -w
+    r = 1.0 / ti.sqrt(ti.max(n2, 1e-30))
+    # the twist angle t = 2 atan2(s, w): (cos t, sin t) is proportional to (w^2 - s^2, 2 s w)
+    return vec4(axis.x * s * r, axis.y * s * r, axis.z * s * r, w * r), pseudo_angle(w * w - s * s, 2.0 * s * w), \
+        n2 > 1e-12
 
 
 @ti.func
@@ -154,12 +199,17 @@ def safe_normalize(v, fallback):
 
 
 @ti.func
-def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), s, cone, bone):
-    """Project q onto the joint's DOFs and clamp it to its limits (cone on the swing of `bone`, then boxes)."""
+def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), lim_p: ti.template(), s, cone, bone):
+    """Project q onto the joint's DOFs and clamp it to its limits (cone on the swing of `bone`, then boxes).
+    lim_p: the limits' pseudo-angles, to skip the Euler decomposition where no box limit bites."""
     out = q
     if kind == 1:
-        t = ti.math.clamp(twist_angle(q, ax0), lo[s], hi[s])
-        out = axis_angle(ax0, t)
+        tw, p, ok = twist_part(q, ax0)
+        if ok and lim_p[s, 0] <= p and p <= lim_p[s, 1]:
+            out = tw
+        else:
+            t = ti.math.clamp(twist_angle(q, ax0), lo[s], hi[s])
+            out = axis_angle(ax0, t)
     elif kind == 2:
         a = joint_angles(kind, ax0, ax1, q)
         out = joint_quat(kind, ax0, ax1, ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
@@ -176,7 +226,7 @@ def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), 
         for d in ti.static(range(3)):
             if lo[s + d] > -1e29 or hi[s + d] < 1e29:
                 limited = True
-        if limited:
+        if limited and not euler_xyz_inside(out, lim_p, s):
             a = quat_to_euler_xyz(out)
             c = vec3(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
                      ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))

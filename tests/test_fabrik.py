@@ -195,7 +195,8 @@ def test_interleaved_free_chain_kernel_equals_the_per_character_kernel(monkeypat
         def per_character(parent, offset, kind, child_start, child_list, eff_joint, root_pos, root_yaw, local_rot,
                           world_pos, world_rot, targets, weights, work, acc_w, max_iterations, tolerance, error,
                           iterations, stalled):
-            fabrik.fabrik_solve(parent, offset, kind, ra["axes"], ra["lo"], ra["hi"], ra["cone"], ra["dof_start"],
+            fabrik.fabrik_solve(parent, offset, kind, ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
+                                ra["dof_start"],
                                 child_start, child_list, eff_joint, ra["eff_axis"], root_pos, root_yaw, local_rot,
                                 world_pos, world_rot, targets, weights, crowd._orient, work, acc_w, max_iterations,
                                 tolerance, 0, 0, error, iterations, stalled)
