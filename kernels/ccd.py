@@ -189,8 +189,8 @@ def straighten_step(k, q, ax, u, v):
 @ti.func
 def constrain_joint(i, j, q, offset: ti.template(), kind: ti.template(), axes: ti.template(), lo: ti.template(),
                     hi: ti.template(), lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
-                    child_start: ti.template(),
-                    child_list: ti.template(), below: ti.template(), weights: ti.template()):
+                    child_start: ti.template(), child_list: ti.template(), below: ti.template(),
+                    weights: ti.template()):
     """q clamped to joint j's limits; the cone limits the first child bone leading to an active effector."""
     first_bone = vec3(0.0)
     found = 0
@@ -204,8 +204,8 @@ def constrain_joint(i, j, q, offset: ti.template(), kind: ti.template(), axes: t
 
 @ti.func
 def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
-              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
-              child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
+              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+              dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
               eff_pos: ti.template(), weights: ti.template(), orient: ti.template()):
@@ -351,9 +351,9 @@ def ccd_solve(
         flat = 0
         stop = 0
         while it < max_iterations and err > tolerance and stop == 0:
-            ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list, eff_joint,
-                      eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos, weights,
-                      orient)
+            ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                      eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos,
+                      weights, orient)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)
             it += 1
             # stalled: four sweeps in a row that improved the error by less than 0.01 %

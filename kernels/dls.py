@@ -466,8 +466,7 @@ def freeze_outward(i, parent: ti.template(), kind: ti.template(), jmode: ti.temp
 @ti.func
 def apply_step(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), jmode: ti.template(),
                axes: ti.template(), lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
-               dof_start: ti.template(),
-               child_start: ti.template(), child_list: ti.template(), root_yaw: ti.template(),
+               dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(), root_yaw: ti.template(),
                local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(), work: ti.template(),
                qwork: ti.template()):
     """Back up the pose, add work[i, STEP] (angles clamped to their limits, cones projected), and run FK.

@@ -276,9 +276,9 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
 @ti.func
 def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
                           lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
-                          dof_start: ti.template(),
-                          child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
-                          eff_axis: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
+                          dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                          eff_joint: ti.template(), eff_axis: ti.template(), root_pos: ti.template(),
+                          root_yaw: ti.template(),
                           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
                           weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template(),
                           use_orient):

@@ -7,6 +7,8 @@ Joint kind codes equal their DOF counts: 0 fixed, 1 hinge, 2 universal, 3 ball.
 
 import taichi as ti
 
+from crowd_ik.reference.quat import GIMBAL  # one source of truth
+
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 PI = 3.141592653589793
@@ -63,21 +65,25 @@ def euler_xyz_to_quat(a, b, c):
 
 
 @ti.func
+def euler_xyz_entries(q):
+    """The rotation matrix entries an XYZ decomposition reads: R02, R12, R22, R01, R00."""
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return (2.0 * (x * z + y * w), 2.0 * (y * z - x * w), 1.0 - 2.0 * (x * x + y * y), 2.0 * (x * y - z * w),
+            1.0 - 2.0 * (y * y + z * z))
+
+
+@ti.func
 def quat_to_euler_xyz(q):
     """Intrinsic XYZ angles of R = Rx(a) Ry(b) Rz(c): b = asin(R02), a = atan2(-R12, R22), c = atan2(-R01, R00)."""
-    x, y, z, w = q.x, q.y, q.z, q.w
-    r02 = 2.0 * (x * z + y * w)
-    r12 = 2.0 * (y * z - x * w)
-    r22 = 1.0 - 2.0 * (x * x + y * y)
-    r01 = 2.0 * (x * y - z * w)
-    r00 = 1.0 - 2.0 * (y * y + z * z)
+    r02, r12, r22, r01, r00 = euler_xyz_entries(q)
     b = ti.asin(ti.math.clamp(r02, -1.0, 1.0))
     a = 0.0
     c = 0.0
-    if ti.abs(r02) < 0.9999995:
+    if ti.abs(r02) < GIMBAL:
         a = ti.atan2(-r12, r22)
         c = ti.atan2(-r01, r00)
     else:  # gimbal lock: put the whole remaining rotation on a
+        x, y, z, w = q.x, q.y, q.z, q.w
         r21 = 2.0 * (y * z + x * w)
         r11 = 1.0 - 2.0 * (x * x + z * z)
         a = ti.atan2(r21, r11)
@@ -99,14 +105,9 @@ def euler_xyz_inside(q, lim_p: ti.template(), s):
     """Whether quat_to_euler_xyz(q) lies inside the box of DOFs s..s+2 (lim_p: their limits' pseudo-angles),
     decided on pseudo-angles of the matrix entries the angles are taken from (b = atan2(r02, cos b) as
     cos b = |(r12, r22)|); False near gimbal lock, where only the full decomposition decides."""
-    x, y, z, w = q.x, q.y, q.z, q.w
-    r02 = 2.0 * (x * z + y * w)
-    r12 = 2.0 * (y * z - x * w)
-    r22 = 1.0 - 2.0 * (x * x + y * y)
-    r01 = 2.0 * (x * y - z * w)
-    r00 = 1.0 - 2.0 * (y * y + z * z)
+    r02, r12, r22, r01, r00 = euler_xyz_entries(q)
     p = vec3(pseudo_angle(r22, -r12), pseudo_angle(ti.sqrt(r12 * r12 + r22 * r22), r02), pseudo_angle(r00, -r01))
-    inside = ti.abs(r02) < 0.9999995
+    inside = ti.abs(r02) < GIMBAL
     for d in ti.static(range(3)):
         if p[d] < lim_p[s + d, 0] or p[d] > lim_p[s + d, 1]:
             inside = False
@@ -222,11 +223,8 @@ def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), 
                 # rotate the bone back toward rest along the great circle until it sits on the cone
                 axis = safe_normalize(ti.math.cross(cur, bone), vec3(0.0, 0.0, 1.0))
                 out = qmul(axis_angle(axis, ang - cone), out)
-        limited = False
-        for d in ti.static(range(3)):
-            if lo[s + d] > -1e29 or hi[s + d] < 1e29:
-                limited = True
-        if limited and not euler_xyz_inside(out, lim_p, s):
+        # (an unlimited DOF's pseudo-angle limits are -3 and 3: inside always)
+        if not euler_xyz_inside(out, lim_p, s):
             a = quat_to_euler_xyz(out)
             c = vec3(ti.math.clamp(a.x, lo[s], hi[s]), ti.math.clamp(a.y, lo[s + 1], hi[s + 1]),
                      ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))

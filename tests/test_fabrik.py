@@ -196,10 +196,9 @@ def test_interleaved_free_chain_kernel_equals_the_per_character_kernel(monkeypat
                           world_pos, world_rot, targets, weights, work, acc_w, max_iterations, tolerance, error,
                           iterations, stalled):
             fabrik.fabrik_solve(parent, offset, kind, ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
-                                ra["dof_start"],
-                                child_start, child_list, eff_joint, ra["eff_axis"], root_pos, root_yaw, local_rot,
-                                world_pos, world_rot, targets, weights, crowd._orient, work, acc_w, max_iterations,
-                                tolerance, 0, 0, error, iterations, stalled)
+                                ra["dof_start"], child_start, child_list, eff_joint, ra["eff_axis"], root_pos, root_yaw,
+                                local_rot, world_pos, world_rot, targets, weights, crowd._orient, work, acc_w,
+                                max_iterations, tolerance, 0, 0, error, iterations, stalled)
 
         for iterations in (2, 50):
             got = []

@@ -34,6 +34,9 @@ def euler_xyz_to_quat(a: np.ndarray) -> np.ndarray:
     return qmul(qmul(axis_angle(ex, a[..., 0]), axis_angle(ey, a[..., 1])), axis_angle(ez, a[..., 2]))
 
 
+GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
+
+
 def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
     x, y, z, w = np.moveaxis(q, -1, 0)
     r02 = 2 * (x * z + y * w)
@@ -44,7 +47,7 @@ def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
     r21 = 2 * (y * z + x * w)
     r11 = 1 - 2 * (x * x + z * z)
     b = np.arcsin(np.clip(r02, -1, 1))
-    lock = np.abs(r02) >= 0.9999995
+    lock = np.abs(r02) >= GIMBAL
     a = np.where(lock, np.arctan2(r21, r11), np.arctan2(-r12, r22))
     c = np.where(lock, 0.0, np.arctan2(-r01, r00))
     return np.stack([a, b, c], axis=-1)
