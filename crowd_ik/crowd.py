@@ -348,16 +348,11 @@ class Crowd:
         from crowd_ik.kernels import fabrik
 
         ra, ti = self.rig_arrays, self._ti
+        if self.rig.constraint_free and self._orient_zero:
+            self._solve_fabrik_free(max_iterations, tolerance)
+            return
         work = self.scratch("fabrik_pos", ti.math.vec3, (self.n, self.rig.n_joints))
         acc_w = self.scratch("fabrik_w", ti.f32, (self.n, self.rig.n_joints))
-        if self.rig.constraint_free and self._orient_zero:
-            fabrik.fabrik_solve_free(
-                ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-                self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
-                self._targets, self._weights, work, acc_w, max_iterations, tolerance,
-                self._error, self._iters, self._stalled,
-            )
-            return
         fabrik.fabrik_solve(
             ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
             ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
@@ -366,6 +361,31 @@ class Crowd:
             max_iterations, tolerance, int(not (self.rig.constraint_free and self._orient_zero)),
             int(not self._orient_zero),
             self._error, self._iters, self._stalled,
+        )
+
+    def _solve_fabrik_free(self, max_iterations: int, tolerance: float) -> None:
+        """FABRIK on a constraint-free rig: L characters per thread as SIMD lanes, then the rotations once."""
+        from crowd_ik.kernels import fabrik_lanes
+        from crowd_ik.solvers import settings
+
+        ra, ti, L = self.rig_arrays, self._ti, settings.lanes()
+        J, E = self.rig.n_joints, self.rig.n_effectors
+        S, P = fabrik_lanes.streams(self.n, L), fabrik_lanes.packets(self.n, L)
+        V = ti.types.vector(L, ti.f32)
+
+        def rows(names: str, shape: tuple) -> list:
+            return [self.scratch(f"fabrik_lanes_{k}", V, shape) for k in names.split()]
+
+        proposals = rows("gx gy gz ga", (P, J))
+        fabrik_lanes.free_solver(L)(
+            ra["parent"], ra["offset"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
+            *rows("px py pz wx wy wz aw", (S, J)), *rows("tx ty tz tw", (S, E)), *proposals,
+            max_iterations, tolerance, self._error, self._iters, self._stalled,
+        )
+        fabrik_lanes.free_recover(L)(
+            ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets,
+            self._weights, *proposals, *rows("fx fy fz fqx fqy fqz fqw", (P, J)), self._error, self._iters,
         )
 
     def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 
+from crowd_ik.solvers import settings
+
 _STATE: dict = {}
 
 ARCHES = ("auto", "cpu", "cuda")
@@ -40,13 +42,17 @@ def _probe_cuda_device() -> bool:
     return False
 
 
-def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir: str | None = None) -> str:
+def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir: str | None = None,
+         lanes: int | None = None) -> str:
     """Initialise Taichi once and return the resolved arch ("cpu" or "cuda").
 
     arch: "auto" (CUDA if present, else CPU) | "cpu" | "cuda". "cuda" without a GPU raises
     RuntimeError (never a silent CPU fallback). A second call with the same (or "auto") arch is a
     no-op; another arch raises RuntimeError. threads: CPU worker threads (None = all cores).
     fp: 32 or 64 (default float precision). cache_dir: Taichi's offline kernel cache folder.
+    lanes: characters per CPU thread in the lane-packed solvers (1, 2, 4, 8, 16 or 32; None = the
+    CROWD_IK_LANES environment variable, else 16 with AVX-512, 8 with AVX2, 1 on CUDA); see
+    crowd_ik/solvers/settings.py.
     """
     if arch not in ARCHES:
         raise ValueError(f"arch: expected one of {', '.join(ARCHES)} (got {arch!r})")
@@ -54,8 +60,12 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         raise ValueError(f"fp: expected 32 or 64 (got {fp!r})")
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
         raise ValueError(f"threads: expected a positive integer (got {threads!r})")
+    if lanes is not None:
+        settings.parse_lanes(lanes, "lanes")
     if _STATE:
         resolved = _STATE["arch"]
+        if lanes is not None and lanes != _STATE["lanes"]:
+            raise RuntimeError(f"crowd_ik is already running with lanes={_STATE['lanes']}; cannot switch to {lanes}")
         if arch not in ("auto", resolved):
             raise RuntimeError(f"crowd_ik is already running on {resolved}; cannot switch to {arch} in this process")
         if fp != _STATE["fp"]:
@@ -83,7 +93,9 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
     resolved = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
     if arch == "cuda" and resolved != "cuda":
         raise RuntimeError("arch 'cuda' requested but Taichi could not start its CUDA backend")
-    _STATE.update(arch=resolved, fp=fp, threads=threads)
+    chosen = settings.choose_lanes(resolved, lanes)
+    settings.set_lanes(chosen)
+    _STATE.update(arch=resolved, fp=fp, threads=threads, lanes=chosen)
     return resolved
 
 

@@ -42,7 +42,7 @@ A character stops when every active position error, every scaled orientation err
 error |(c - s)_xz| are <= tolerance. It is stalled after STALL_AFTER rejected or flat (gain < FLAT * F)
 attempts in a row, when F falls by less than PROGRESS over WINDOW accepted steps, when lam passes
 LAM_CAP * L, or when its attempts run out (2 * max_iterations + 8), each unless an escape is left. The
-constants live in crowd_ik/reference/dls.py, shared with the NumPy twin.
+constants live in crowd_ik/solvers/settings.py, shared with the NumPy twin.
 """
 
 import taichi as ti
@@ -51,8 +51,10 @@ from crowd_ik.kernels.quat import (
     axis_angle, constrain_rotation, joint_angles, joint_quat, qconj, qmul, qnormalize, qrot, quat_to_euler_xyz,
     yaw_quat, vec3, vec4,
 )
-from crowd_ik.reference.dls import (
-    ESCAPE_ATTEMPTS, FLAT, KICK, LAM_CAP, LIMIT_EPS, MAX_ESCAPES, ORI_CLAMP, PROGRESS, STALL_AFTER, WINDOW,
+from crowd_ik.solvers.settings import (
+    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
+    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_ORI_CLAMP as ORI_CLAMP,
+    DLS_PROGRESS as PROGRESS, DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
 )
 
 ndarray = ti.types.ndarray

@@ -29,7 +29,10 @@ import taichi as ti
 from crowd_ik.kernels.fk import joint_fk_local
 from crowd_ik.kernels.local_arrays import get3, get4, put
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, yaw_quat, vec3, vec4
-from crowd_ik.reference.dls import FLAT, LAM_CAP, PROGRESS, STALL_AFTER, WINDOW
+from crowd_ik.solvers.settings import (
+    DLS_FLAT as FLAT, DLS_LAM_CAP as LAM_CAP, DLS_PROGRESS as PROGRESS, DLS_STALL_AFTER as STALL_AFTER,
+    DLS_WINDOW as WINDOW,
+)
 
 ndarray = ti.types.ndarray
 

@@ -14,8 +14,8 @@ from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
-from crowd_ik.reference.fabrik import (  # one source of truth
-    FLAT, STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
+from crowd_ik.solvers.settings import (
+    FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
 )
 
 ndarray = ti.types.ndarray
@@ -439,56 +439,12 @@ def fabrik_solve(
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Constraint-free rigs (unlimited ball joints, no orientation targets): LANES characters per thread, interleaved.
-#
-# A FABRIK pass is a chain of dependent sqrt and divide steps (each joint waits for its parent's), so one
-# character per thread leaves the core idle most of the time. Here each thread advances LANES characters
-# joint by joint; their chains are independent, so the core overlaps them. Every character still runs
-# exactly the arithmetic of fabrik_solve, so results and iteration counts are the same.
-LANES = 4
-
-
-@ti.func
-def recover_free(g, parent: ti.template(), offset: ti.template(), kind: ti.template(), child_start: ti.template(),
-                 child_list: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
-                 iterations: ti.template(), local_rot: ti.template(), world_pos: ti.template(),
-                 world_rot: ti.template(), work: ti.template(), acc_w: ti.template()):
-    """recover_and_constrain for the characters of lane group g that iterated, on a constraint-free rig (what
-    that sweep does for unlimited ball joints), lanes interleaved joint by joint."""
-    N = root_pos.shape[0]
-    for j in range(parent.shape[0]):
-        p = parent[j]
-        c0 = child_start[j]
-        c1 = child_start[j + 1]
-        for l in ti.static(range(LANES)):
-            i = g * LANES + l
-            if i < N and iterations[i] > 0:
-                base_pos = root_pos[i]
-                base_rot = vec4(0.0, 0.0, 0.0, 1.0)
-                if p >= 0:
-                    base_pos = world_pos[i, p]
-                    base_rot = world_rot[i, p]
-                else:
-                    base_rot = yaw_quat(root_yaw[i])
-                pos_j = base_pos + qrot(base_rot, offset[j])
-                world_pos[i, j] = pos_j
-                q = local_rot[i, j]
-                if kind[j] > 0 and c1 > c0 and acc_w[i, j] > 0.0:
-                    inv_base = qconj(base_rot)
-                    n_active = 0
-                    for cc in range(c0, c1):
-                        if acc_w[i, child_list[cc]] > 0.0:
-                            n_active += 1
-                    rounds = 1 if n_active <= 1 else SWING_ROUNDS
-                    for _ in range(rounds):
-                        if n_active > 0:
-                            q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)
-                    local_rot[i, j] = q
-                world_rot[i, j] = qmul(base_rot, q)
+# Constraint-free rigs (unlimited ball joints, no orientation targets): kernels/fabrik_lanes.py moves the joints,
+# L characters per thread as SIMD lanes; the rotations of its final positions are recovered here, once.
 
 
 @ti.kernel
-def fabrik_solve_free(
+def fabrik_recover_free(
     parent: ndarray(dtype=ti.i32, ndim=1),
     offset: ndarray(dtype=vec3, ndim=1),
     kind: ndarray(dtype=ti.i32, ndim=1),
@@ -504,74 +460,36 @@ def fabrik_solve_free(
     weights: ndarray(ndim=2),
     work: ndarray(dtype=vec3, ndim=2),
     acc_w: ndarray(ndim=2),
-    max_iterations: ti.i32,
-    tolerance: ti.f32,
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
-    stalled: ndarray(dtype=ti.i32, ndim=1),
 ):
-    """fabrik_solve with recover_each_iteration 0 and no orientation targets, LANES characters per thread."""
-    N = root_pos.shape[0]
-    J = parent.shape[0]
-    for g in range((N + LANES - 1) // LANES):
-        err = ti.Vector([0.0] * LANES)
-        it = ti.Vector([0] * LANES)
-        flat = ti.Vector([0] * LANES)
-        live = ti.Vector([0] * LANES)  # 1 while the lane's character iterates
-        for l in ti.static(range(LANES)):
-            i = g * LANES + l
-            if i < N:
-                err[l] = effector_error(i, eff_joint, targets, weights, world_pos)
-                if max_iterations > 0 and err[l] > tolerance:
-                    live[l] = 1
-        while live.sum() > 0:
-            # backward pass (backward_pass, lanes interleaved joint by joint)
-            for l in ti.static(range(LANES)):
-                if live[l]:
-                    seed_targets(g * LANES + l, eff_joint, targets, weights, work, acc_w)
-            for jj in range(J - 1):
-                j = J - 1 - jj
-                length = offset[j].norm()
-                for l in ti.static(range(LANES)):
-                    if live[l]:
-                        backward_joint(g * LANES + l, j, parent[j], length, -offset[j] / length, world_pos, work,
-                                       acc_w)
-            # forward pass from the fixed root (forward_pass), then the proposed positions become the pose
-            for l in ti.static(range(LANES)):
-                i = g * LANES + l
-                if live[l]:
-                    work[i, 0] = world_pos[i, 0]
-            for j in range(1, J):
-                length = offset[j].norm()
-                for l in ti.static(range(LANES)):
-                    i = g * LANES + l
-                    if live[l]:
-                        forward_joint(i, j, parent[j], length, offset[j] / length, work, acc_w)
-                        if acc_w[i, j] > 0.0:
-                            world_pos[i, j] = work[i, j]
-            for l in ti.static(range(LANES)):
-                i = g * LANES + l
-                if live[l]:
-                    new_err = effector_error(i, eff_joint, targets, weights, world_pos)
-                    it[l] += 1
-                    if new_err > err[l] * (1.0 - FLAT):
-                        flat[l] += 1
-                    else:
-                        flat[l] = 0
-                    err[l] = new_err
-                    if flat[l] >= STALL_AFTER or it[l] >= max_iterations or err[l] <= tolerance:
-                        live[l] = 0
-        for l in ti.static(range(LANES)):
-            i = g * LANES + l
-            if i < N:
-                iterations[i] = it[l]
-                stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
-                error[i] = err[l]
-    # the rotations of the final positions, once (exact on a chain; at a sub-base the best fit, as fabrik_solve)
-    for g in range((N + LANES - 1) // LANES):
-        recover_free(g, parent, offset, kind, child_start, child_list, root_pos, root_yaw, iterations, local_rot,
-                     world_pos, world_rot, work, acc_w)
-        for l in ti.static(range(LANES)):
-            i = g * LANES + l
-            if i < N and iterations[i] > 0:
-                error[i] = effector_error(i, eff_joint, targets, weights, world_pos)
+    """recover_and_constrain for unlimited ball joints, of the characters that iterated: the rotations that
+    reproduce the proposed positions work (exact on a chain; at a sub-base the best fit), FK, and the error of
+    the fitted pose (as fabrik_solve with recover_each_iteration 0)."""
+    for i in range(root_pos.shape[0]):
+        if iterations[i] > 0:
+            for j in range(parent.shape[0]):
+                p = parent[j]
+                c0 = child_start[j]
+                c1 = child_start[j + 1]
+                base_pos = root_pos[i]
+                base_rot = yaw_quat(root_yaw[i])
+                if p >= 0:
+                    base_pos = world_pos[i, p]
+                    base_rot = world_rot[i, p]
+                pos_j = base_pos + qrot(base_rot, offset[j])
+                world_pos[i, j] = pos_j
+                q = local_rot[i, j]
+                if kind[j] > 0 and c1 > c0 and acc_w[i, j] > 0.0:
+                    inv_base = qconj(base_rot)
+                    n_active = 0
+                    for cc in range(c0, c1):
+                        if acc_w[i, child_list[cc]] > 0.0:
+                            n_active += 1
+                    rounds = 1 if n_active <= 1 else SWING_ROUNDS
+                    for _ in range(rounds):
+                        if n_active > 0:
+                            q = swing_round(i, q, c0, c1, inv_base, pos_j, offset, child_list, work, acc_w)
+                    local_rot[i, j] = q
+                world_rot[i, j] = qmul(base_rot, q)
+            error[i] = effector_error(i, eff_joint, targets, weights, world_pos)

@@ -7,7 +7,7 @@ Joint kind codes equal their DOF counts: 0 fixed, 1 hinge, 2 universal, 3 ball.
 
 import taichi as ti
 
-from crowd_ik.reference.quat import GIMBAL  # one source of truth
+from crowd_ik.solvers.settings import GIMBAL
 
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4

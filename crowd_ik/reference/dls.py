@@ -27,24 +27,14 @@ from crowd_ik.reference.quat import (
 )
 from crowd_ik.rig import Rig
 
-# Constants of the solver, shared with kernels/dls.py (which imports them: one source of truth).
-ERROR_CLAMP = 1.0  # d_max = 1.0 * mean bone length * sqrt(bones from the root), Buss & Kim 2005; the LM
-# acceptance test already rejects steps that overshoot, so a looser clamp than their 0.4 costs no stability
-# and saves iterations: chain16 from straight 13.8 -> 9.4 mean, the same 100 % humanoid and 99.99 % chain16
-# success (benchmark workloads)
-DAMPING = 0.05  # default damping = 0.05 * L
-DAMPING_MIN = 1e-3  # damping below 1e-3 * L is raised to it (keeps the float32 Cholesky positive definite)
-ORI_CLAMP = 0.5  # radians: the largest orientation error one step aims to remove
-STALL_AFTER = 5  # rejected or flat attempts in a row that make a stall
-FLAT = 1e-4  # an accepted step is flat if it removes less than this fraction of F
-WINDOW = 6  # accepted steps over which F must fall by PROGRESS, or the solve counts as stalled
-PROGRESS = 0.05
-LAM_CAP = 1e3  # lam beyond LAM_CAP * L is a stall
-LIMIT_EPS = 1e-6  # radians: a DOF this close to a limit counts as on it
-EULER_B_MAX = 0.5 * np.pi - 0.01  # an Euler-angle ball joint's middle angle stays this far from gimbal lock
-KICK = 0.5  # radians: an escape moves DOFs stuck on a limit this far inward (at most half their range)
-MAX_ESCAPES = 3  # escapes per solve
-ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its kick
+# The solver's constants live in crowd_ik/solvers/settings.py, shared with kernels/dls.py.
+from crowd_ik.solvers.settings import (
+    DLS_ERROR_CLAMP as ERROR_CLAMP, DLS_DAMPING as DAMPING, DLS_DAMPING_MIN as DAMPING_MIN,
+    DLS_ORI_CLAMP as ORI_CLAMP, DLS_STALL_AFTER as STALL_AFTER, DLS_FLAT as FLAT, DLS_WINDOW as WINDOW,
+    DLS_PROGRESS as PROGRESS, DLS_LAM_CAP as LAM_CAP, DLS_LIMIT_EPS as LIMIT_EPS,
+    DLS_EULER_B_MAX as EULER_B_MAX, DLS_KICK as KICK, DLS_MAX_ESCAPES as MAX_ESCAPES,
+    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS,
+)
 
 
 def balance_weights(rig: Rig) -> tuple[np.ndarray, np.ndarray]:

@@ -16,15 +16,10 @@ from crowd_ik.reference.quat import (
 from crowd_ik.reference.fk import yaw_quat
 from crowd_ik.rig import Rig
 
-# Constants of the solver, shared with kernels/fabrik.py (which imports them).
-# Sine of the bend FABRIK proposes for a hinge limb: below TWIST_MIN_BEND the ball joint above keeps its
-# twist, above TWIST_FULL_BEND it turns the hinge axis fully onto the proposed plane (linear in between).
-TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1
-# A character has stalled after STALL_AFTER updates in a row that improve its errors by less than FLAT.
-STALL_AFTER, FLAT = 4, 1e-6
-# A joint with several active children (a sub-base) turns by the weighted mean of their swings, refined
-# this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
-SWING_ROUNDS = 2
+# The solver's constants live in crowd_ik/solvers/settings.py, shared with kernels/fabrik.py.
+from crowd_ik.solvers.settings import (
+    FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
+)
 
 
 def _error(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> np.ndarray:

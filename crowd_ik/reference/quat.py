@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.solvers.settings import GIMBAL  # |R02| from which XYZ is gimbal-locked
+
 
 def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     av, aw = a[..., :3], a[..., 3:]
@@ -33,8 +35,6 @@ def euler_xyz_to_quat(a: np.ndarray) -> np.ndarray:
     ex, ey, ez = np.eye(3)
     return qmul(qmul(axis_angle(ex, a[..., 0]), axis_angle(ey, a[..., 1])), axis_angle(ez, a[..., 2]))
 
-
-GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
 
 
 def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:

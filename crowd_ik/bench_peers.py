@@ -1,0 +1,157 @@
+"""The bench's compiled yardstick: FABRIK and DLS for chains written in numba as a competent user writes them.
+
+One chain per thread (``prange`` over chains), float64 or float32, positions in an (N, J, 3) array, no
+SIMD tricks: the bar crowd_ik's kernels must clear, not a strawman. Both solve the bench's chain16
+workload (all bones on one chain from the root, one effector at the tip, unlimited ball joints):
+
+- ``fabrik``: Aristidou & Lasenby (2011) algorithm 1 for one chain: while the tip is farther than the
+  tolerance from the target, put the tip on the target and walk back to the root keeping bone lengths,
+  then pin the root and walk forward.
+- ``dls``: damped least squares (Buss 2004, eq. 11) with each ball joint turning about the world axes:
+  the tip's Jacobian columns for joint n are ``e_k x (tip - p_n)``, so the 3 x 3 system is
+  ``(J J^T + lambda^2 I) y = e``, the step of joint n is ``(tip - p_n) x y`` (that is J^T y), fixed
+  damping lambda = 0.1, no error clamp, and each joint's world frame turns by its step.
+
+numba is an optional extra (``pip install -e '.[peers]'``); importing this module without it is fine,
+:func:`available` says whether the peers can run.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import time
+
+import numpy as np
+
+DLS_LAMBDA = 0.1
+
+
+def available() -> bool:
+    return importlib.util.find_spec("numba") is not None
+
+
+def _build():
+    import numba as nb
+
+    @nb.njit(parallel=True, cache=True)
+    def fabrik(pos, lengths, targets, tol, max_it, iters, err):
+        n, J = pos.shape[0], pos.shape[1]
+        for c in nb.prange(n):
+            p = pos[c]
+            bx, by, bz = p[0, 0], p[0, 1], p[0, 2]
+            tx, ty, tz = targets[c, 0], targets[c, 1], targets[c, 2]
+            it = 0
+            while True:
+                dx, dy, dz = p[J - 1, 0] - tx, p[J - 1, 1] - ty, p[J - 1, 2] - tz
+                d = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if d <= tol or it >= max_it:
+                    break
+                p[J - 1, 0], p[J - 1, 1], p[J - 1, 2] = tx, ty, tz
+                for j in range(J - 2, -1, -1):  # backward: from the target to the root
+                    ux, uy, uz = p[j, 0] - p[j + 1, 0], p[j, 1] - p[j + 1, 1], p[j, 2] - p[j + 1, 2]
+                    s = lengths[j] / np.sqrt(ux * ux + uy * uy + uz * uz)
+                    p[j, 0], p[j, 1], p[j, 2] = p[j + 1, 0] + s * ux, p[j + 1, 1] + s * uy, p[j + 1, 2] + s * uz
+                p[0, 0], p[0, 1], p[0, 2] = bx, by, bz
+                for j in range(1, J):  # forward: from the pinned root to the tip
+                    ux, uy, uz = p[j, 0] - p[j - 1, 0], p[j, 1] - p[j - 1, 1], p[j, 2] - p[j - 1, 2]
+                    s = lengths[j - 1] / np.sqrt(ux * ux + uy * uy + uz * uz)
+                    p[j, 0], p[j, 1], p[j, 2] = p[j - 1, 0] + s * ux, p[j - 1, 1] + s * uy, p[j - 1, 2] + s * uz
+                it += 1
+            iters[c] = it
+            err[c] = d
+
+    @nb.njit(cache=True)
+    def _rodrigues(rx, ry, rz, out):
+        """out = the rotation matrix of the rotation vector (rx, ry, rz)."""
+        a = np.sqrt(rx * rx + ry * ry + rz * rz)
+        c, s = np.cos(a), np.sin(a)
+        if a < 1e-12:
+            kx, ky, kz, c1 = 0.0, 0.0, 0.0, 0.0
+        else:
+            kx, ky, kz, c1 = rx / a, ry / a, rz / a, 1.0 - c
+        out[0, 0], out[0, 1], out[0, 2] = c + kx * kx * c1, kx * ky * c1 - kz * s, kx * kz * c1 + ky * s
+        out[1, 0], out[1, 1], out[1, 2] = ky * kx * c1 + kz * s, c + ky * ky * c1, ky * kz * c1 - kx * s
+        out[2, 0], out[2, 1], out[2, 2] = kz * kx * c1 - ky * s, kz * ky * c1 + kx * s, c + kz * kz * c1
+
+    @nb.njit(parallel=True, cache=True)
+    def dls(pos, targets, tol, max_it, lam, iters, err):
+        n, J = pos.shape[0], pos.shape[1]
+        for c in nb.prange(n):
+            p = pos[c]
+            it = 0
+            step = np.empty((J - 1, 3), pos.dtype)
+            bone = np.empty((J - 1, 3), pos.dtype)
+            m = np.empty((3, 3), pos.dtype)
+            rot = np.empty((3, 3), pos.dtype)
+            while True:
+                ex, ey, ez = targets[c, 0] - p[J - 1, 0], targets[c, 1] - p[J - 1, 1], targets[c, 2] - p[J - 1, 2]
+                d = np.sqrt(ex * ex + ey * ey + ez * ez)
+                if d <= tol or it >= max_it:
+                    break
+                # A = J J^T + lambda^2 I = sum over joints of (|r|^2 I - r r^T) + lambda^2 I, r = tip - joint
+                a00 = a11 = a22 = lam * lam
+                a01 = a02 = a12 = 0.0
+                for j in range(J - 1):
+                    rx, ry, rz = p[J - 1, 0] - p[j, 0], p[J - 1, 1] - p[j, 1], p[J - 1, 2] - p[j, 2]
+                    a00 += ry * ry + rz * rz
+                    a11 += rx * rx + rz * rz
+                    a22 += rx * rx + ry * ry
+                    a01 -= rx * ry
+                    a02 -= rx * rz
+                    a12 -= ry * rz
+                # y = A^-1 e by the adjugate (A is symmetric positive definite)
+                c00, c01, c02 = a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11
+                c11, c12, c22 = a00 * a22 - a02 * a02, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01
+                det = a00 * c00 + a01 * c01 + a02 * c02
+                yx = (c00 * ex + c01 * ey + c02 * ez) / det
+                yy = (c01 * ex + c11 * ey + c12 * ez) / det
+                yz = (c02 * ex + c12 * ey + c22 * ez) / det
+                for j in range(J - 1):  # J^T y: joint j turns by r_j x y
+                    rx, ry, rz = p[J - 1, 0] - p[j, 0], p[J - 1, 1] - p[j, 1], p[J - 1, 2] - p[j, 2]
+                    step[j, 0], step[j, 1], step[j, 2] = ry * yz - rz * yy, rz * yx - rx * yz, rx * yy - ry * yx
+                    for u in range(3):
+                        bone[j, u] = p[j + 1, u] - p[j, u]
+                # joint j's world frame turns by step j, carrying the joints below it: bone k turns by
+                # M_k = R_0 R_1 ... R_k, accumulated from the root
+                m[:, :] = 0.0
+                for u in range(3):
+                    m[u, u] = 1.0
+                for j in range(J - 1):
+                    _rodrigues(step[j, 0], step[j, 1], step[j, 2], rot)
+                    for u in range(3):
+                        m0, m1, m2 = m[u, 0], m[u, 1], m[u, 2]
+                        for v in range(3):
+                            m[u, v] = m0 * rot[0, v] + m1 * rot[1, v] + m2 * rot[2, v]
+                    for u in range(3):
+                        p[j + 1, u] = p[j, u] + m[u, 0] * bone[j, 0] + m[u, 1] * bone[j, 1] + m[u, 2] * bone[j, 2]
+                it += 1
+            iters[c] = it
+            err[c] = d
+
+    return fabrik, dls
+
+
+_KERNELS: dict = {}
+
+
+def _kernels():
+    if not _KERNELS:
+        _KERNELS["fabrik"], _KERNELS["dls"] = _build()
+    return _KERNELS
+
+
+def solve(method: str, start: np.ndarray, targets: np.ndarray, tolerance: float, max_iterations: int,
+          dtype=np.float64) -> dict:
+    """Solve chains from joint positions `start` (N, J, 3) toward `targets` (N, 3): time, error, iterations."""
+    k = _kernels()[method]
+    pos = np.array(start, dtype, order="C")  # a copy: the solve moves it
+    tg = np.ascontiguousarray(targets, dtype)
+    iters = np.zeros(pos.shape[0], np.int32)
+    err = np.zeros(pos.shape[0], dtype)
+    t0 = time.perf_counter()
+    if method == "fabrik":
+        lengths = np.linalg.norm(np.diff(pos[0], axis=0), axis=-1).astype(dtype)
+        k(pos, lengths, tg, dtype(tolerance), max_iterations, iters, err)
+    else:
+        k(pos, tg, dtype(tolerance), max_iterations, dtype(DLS_LAMBDA), iters, err)
+    return dict(time_s=time.perf_counter() - t0, error=err.astype(np.float64), iterations=iters, positions=pos)

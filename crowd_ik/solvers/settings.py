@@ -1,0 +1,100 @@
+"""Solver constants and the SIMD lane width: the one module kernels/ may import besides kernels.*.
+
+The kernels, their NumPy twins in crowd_ik/reference/ and the product all read the constants here, so
+the oracle and the product cannot drift apart and neither depends on the other. Importing this module
+creates no Taichi state.
+
+Lane width L: the lane-packed kernels (kernels/fabrik_lanes.py, kernels/dls_lanes.py) solve a packet of
+L characters per CPU thread, each scalar of a character's state one lane of a ``ti.types.vector(L,
+ti.f32)``, which Taichi's CPU backend compiles to packed SIMD code. L is chosen once, when
+:func:`crowd_ik.init` starts Taichi: 16 float32 lanes where the CPU has AVX-512, 8 with AVX2, 4
+otherwise, and 1 on CUDA (one character per GPU thread is already vectorised across the warp). The
+environment variable ``CROWD_IK_LANES`` or ``crowd_ik.init(lanes=...)`` overrides it (tests use small
+widths). Kernels are built per L by cached factories, so a process only compiles the widths it uses.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+# ---------------------------------------------------------------------------------------------- FABRIK
+# Sine of the bend FABRIK proposes for a hinge limb: below TWIST_MIN_BEND the ball joint above keeps its
+# twist, above TWIST_FULL_BEND it turns the hinge axis fully onto the proposed plane (linear in between).
+TWIST_MIN_BEND, TWIST_FULL_BEND = 0.01, 0.1
+# A character has stalled after FABRIK_STALL_AFTER updates in a row that improve its errors by less than
+# FABRIK_FLAT.
+FABRIK_STALL_AFTER, FABRIK_FLAT = 4, 1e-6
+# A joint with several active children (a sub-base) turns by the weighted mean of their swings, refined
+# this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
+SWING_ROUNDS = 2
+
+# ---------------------------------------------------------------------------------------------- DLS
+DLS_ERROR_CLAMP = 1.0  # d_max = 1.0 * mean bone length * sqrt(bones from the root), Buss & Kim 2005; the LM
+# acceptance test already rejects steps that overshoot, so a looser clamp than their 0.4 costs no stability
+# and saves iterations: chain16 from straight 13.8 -> 9.4 mean, the same 100 % humanoid and 99.99 % chain16
+# success (benchmark workloads)
+DLS_DAMPING = 0.05  # default damping = 0.05 * L
+DLS_DAMPING_MIN = 1e-3  # damping below 1e-3 * L is raised to it (keeps the float32 Cholesky positive definite)
+DLS_ORI_CLAMP = 0.5  # radians: the largest orientation error one step aims to remove
+DLS_STALL_AFTER = 5  # rejected or flat attempts in a row that make a stall
+DLS_FLAT = 1e-4  # an accepted step is flat if it removes less than this fraction of F
+DLS_WINDOW = 6  # accepted steps over which F must fall by DLS_PROGRESS, or the solve counts as stalled
+DLS_PROGRESS = 0.05
+DLS_LAM_CAP = 1e3  # lam beyond DLS_LAM_CAP * L is a stall
+DLS_LIMIT_EPS = 1e-6  # radians: a DOF this close to a limit counts as on it
+DLS_EULER_B_MAX = 0.5 * math.pi - 0.01  # an Euler-angle ball joint's middle angle stays this far from gimbal lock
+DLS_KICK = 0.5  # radians: an escape moves DOFs stuck on a limit this far inward (at most half their range)
+DLS_MAX_ESCAPES = 3  # escapes per solve
+DLS_ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its kick
+
+# ---------------------------------------------------------------------------------------------- rotations
+GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
+
+# ---------------------------------------------------------------------------------------------- lanes
+LANE_CHOICES = (1, 2, 4, 8, 16, 32)
+_LANES: dict = {}
+
+
+def cpu_vector_lanes(cpuinfo: str = "/proc/cpuinfo") -> int:
+    """float32 lanes of the widest vector unit the CPU reports: 16 (AVX-512F), 8 (AVX2), else 4."""
+    try:
+        with open(cpuinfo, encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    flags = set(line.split(":", 1)[1].split())
+                    return 16 if "avx512f" in flags else 8 if "avx2" in flags else 4
+    except OSError:
+        pass
+    return 4
+
+
+def parse_lanes(value, source: str) -> int:
+    """A lane width from a user (flag, argument or environment variable) or ValueError naming the source."""
+    try:
+        lanes = int(str(value).strip()) if not isinstance(value, int) or isinstance(value, bool) else value
+    except ValueError:
+        lanes = -1
+    if isinstance(value, bool) or lanes not in LANE_CHOICES:
+        raise ValueError(f"{source}: expected one of {', '.join(map(str, LANE_CHOICES))} (got {value!r})")
+    return lanes
+
+
+def choose_lanes(arch: str, requested: int | None = None) -> int:
+    """The lane width for `arch` ("cpu" or "cuda"): `requested`, else CROWD_IK_LANES, else the hardware's."""
+    if requested is not None:
+        return parse_lanes(requested, "lanes")
+    env = os.environ.get("CROWD_IK_LANES")
+    if env:
+        return parse_lanes(env, "CROWD_IK_LANES")
+    return 1 if arch == "cuda" else cpu_vector_lanes()
+
+
+def set_lanes(lanes: int) -> None:
+    """Record the lane width (called once by crowd_ik.runtime.init)."""
+    _LANES["L"] = parse_lanes(lanes, "lanes")
+
+
+def lanes() -> int:
+    """The lane width of this process (chosen by crowd_ik.init; the CPU's before it runs)."""
+    return _LANES.get("L") or choose_lanes("cpu")

@@ -1,0 +1,334 @@
+"""FABRIK on constraint-free rigs with L characters per CPU thread as SIMD lanes.
+
+Each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``: a packet's joint j
+is three lane vectors (x, y, z) in a scratch ndarray row, every operation is element-wise, so Taichi's
+CPU backend emits packed vector code (16 float32 lanes with AVX-512), and branches become per-lane
+selects (kernels/lane_math.py).
+
+Two kernels, both built per lane width by cached factories (importing this module creates no Taichi
+state; crowd_ik/solvers/settings.py chooses L):
+
+- :func:`free_solver` moves the joints. It runs S streams, each a contiguous range of characters
+  worked through by L lanes: when a lane's character converges, stalls or runs out of iterations, its
+  result is written out and the lane takes the stream's next character. So a stream costs the sum of
+  its characters' iterations over L, not L times the slowest one's (chain16: a 16-lane packet's slowest
+  character takes 2.8 times the mean iterations). A stream stops when no lane has work.
+- :func:`free_recover` then recovers the rotations of the final positions, once, for L consecutive
+  characters at a time (exact on a chain; at a sub-base the best fit, as kernels/fabrik.py's
+  recover_and_constrain does for unlimited ball joints), runs FK and measures the fitted pose's error.
+
+Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's backward and forward
+passes and recovery; the NumPy twin's ``fabrik_solve`` without constraints), in the same order, so
+statuses and iteration counts match it and results do not depend on a character's lane-mates.
+"""
+
+import functools
+
+import taichi as ti
+
+from crowd_ik.kernels import lane_math as lm
+from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
+
+ndarray = ti.types.ndarray
+vec3 = ti.math.vec3
+vec4 = ti.math.vec4
+CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
+
+
+def packets(n: int, lanes: int) -> int:
+    """Packets of `lanes` consecutive characters that hold n characters (the last one padded)."""
+    return (n + lanes - 1) // lanes
+
+
+def streams(n: int, lanes: int) -> int:
+    """Streams free_solver runs for n characters: about CHARS_PER_LANE characters per lane, and at least
+    as many streams as packets up to 8 (small crowds still use every thread)."""
+    return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE))))
+
+
+@functools.cache
+def free_solver(L: int):
+    """The joint-moving kernel for lane width L. Scratch per stream s: (S, J) lane rows px, py, pz (pose),
+    wx, wy, wz, aw (proposals and their weights), (S, E) rows tx, ty, tz, tw (targets, weights).
+    Output per character i in (P, J) lane rows [i // L][i % L]: gx, gy, gz, ga, the last proposals."""
+    V = ti.types.vector(L, ti.f32)
+    Vi = ti.types.vector(L, ti.i32)
+
+    @ti.func
+    def lane_error(s, eff_joint: ti.template(), px: ti.template(), py: ti.template(), pz: ti.template(),
+                   tx: ti.template(), ty: ti.template(), tz: ti.template(), tw: ti.template()):
+        """Max over effectors with positive weight of |effector - target|, per lane."""
+        err = V(0.0)
+        for e in range(eff_joint.shape[0]):
+            k = eff_joint[e]
+            n = lm.norm3(px[s, k] - tx[s, e], py[s, k] - ty[s, e], pz[s, k] - tz[s, e])
+            err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
+        return err
+
+    @ti.kernel
+    def solve(
+        parent: ndarray(dtype=ti.i32, ndim=1),
+        offset: ndarray(dtype=vec3, ndim=1),
+        eff_joint: ndarray(dtype=ti.i32, ndim=1),
+        world_pos: ndarray(dtype=vec3, ndim=2),
+        targets: ndarray(dtype=vec3, ndim=2),
+        weights: ndarray(ndim=2),
+        px: ndarray(dtype=V, ndim=2), py: ndarray(dtype=V, ndim=2), pz: ndarray(dtype=V, ndim=2),
+        wx: ndarray(dtype=V, ndim=2), wy: ndarray(dtype=V, ndim=2), wz: ndarray(dtype=V, ndim=2),
+        aw: ndarray(dtype=V, ndim=2),
+        tx: ndarray(dtype=V, ndim=2), ty: ndarray(dtype=V, ndim=2), tz: ndarray(dtype=V, ndim=2),
+        tw: ndarray(dtype=V, ndim=2),
+        gx: ndarray(dtype=V, ndim=2), gy: ndarray(dtype=V, ndim=2), gz: ndarray(dtype=V, ndim=2),
+        ga: ndarray(dtype=V, ndim=2),
+        max_iterations: ti.i32,
+        tolerance: ti.f32,
+        error: ndarray(ndim=1),
+        iterations: ndarray(dtype=ti.i32, ndim=1),
+        stalled: ndarray(dtype=ti.i32, ndim=1),
+    ):
+        """Move the N = world_pos.shape[0] characters' joints; error, iterations, stalled (N,) as fabrik_solve
+        (the error before the rotations are recovered)."""
+        N = world_pos.shape[0]
+        J = parent.shape[0]
+        E = eff_joint.shape[0]
+        S = px.shape[0]
+        chunk = (N + S - 1) // S
+        ti.loop_config(block_dim=1)  # streams end at different times: hand them out one at a time
+        for s in range(S):
+            nxt = s * chunk
+            end = ti.min(nxt + chunk, N)
+            cur = Vi(-1)  # each lane's character, -1 for none
+            live = V(0.0)
+            err = V(0.0)
+            it = V(0.0)
+            flat = V(0.0)
+            pending = V(1.0)  # lanes to hand their character's result out and take the next one
+            while pending.max() + live.max() > 0.0:
+                for l in range(L):  # a lane whose character stopped hands its result out and takes the next
+                    if pending[l] > 0.0:
+                        i = cur[l]
+                        if i >= 0:
+                            error[i] = err[l]
+                            iterations[i] = ti.cast(it[l], ti.i32)
+                            stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
+                            for j in range(J):
+                                gx[i // L, j][i % L] = wx[s, j][l]
+                                gy[i // L, j][i % L] = wy[s, j][l]
+                                gz[i // L, j][i % L] = wz[s, j][l]
+                                ga[i // L, j][i % L] = aw[s, j][l]
+                        cur[l] = -1
+                        live[l] = 0.0
+                        while nxt < end and cur[l] < 0:  # take the next character that needs iterations
+                            i = nxt
+                            nxt += 1
+                            e0 = 0.0
+                            for e in range(E):
+                                v = targets[i, e]
+                                w = weights[i, e]
+                                tx[s, e][l] = v.x
+                                ty[s, e][l] = v.y
+                                tz[s, e][l] = v.z
+                                tw[s, e][l] = w
+                                if w > 0.0:
+                                    e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
+                            if max_iterations > 0 and e0 > tolerance:
+                                for j in range(J):
+                                    v = world_pos[i, j]
+                                    px[s, j][l], py[s, j][l], pz[s, j][l] = v.x, v.y, v.z
+                                cur[l] = i
+                                live[l] = 1.0
+                                err[l] = e0
+                                it[l] = 0.0
+                                flat[l] = 0.0
+                            else:
+                                error[i] = e0
+                                iterations[i] = 0
+                                stalled[i] = 0
+                pending = V(0.0)
+                if live.max() > 0.0:
+                    # backward pass: seed the effectors' weighted targets, then joints J-1..1 toward the root
+                    for j in range(J):
+                        wx[s, j], wy[s, j], wz[s, j], aw[s, j] = V(0.0), V(0.0), V(0.0), V(0.0)
+                    for e in range(E):
+                        k = eff_joint[e]
+                        w = tw[s, e]
+                        on = w > 0.0
+                        wx[s, k] = ti.select(on, wx[s, k] + w * tx[s, e], wx[s, k])
+                        wy[s, k] = ti.select(on, wy[s, k] + w * ty[s, e], wy[s, k])
+                        wz[s, k] = ti.select(on, wz[s, k] + w * tz[s, e], wz[s, k])
+                        aw[s, k] = ti.select(on, aw[s, k] + w, aw[s, k])
+                    for jj in range(J - 1):
+                        j = J - 1 - jj
+                        q = parent[j]
+                        length = offset[j].norm()
+                        fb = -offset[j] / length
+                        w = aw[s, j]
+                        on = w > 0.0
+                        ws = ti.select(on, w, 1.0)
+                        inv = 1.0 / ws  # (exact where the weights are 1, as on chain16)
+                        cx, cy, cz = wx[s, j] * inv, wy[s, j] * inv, wz[s, j] * inv  # the centroid of what reached j
+                        wx[s, j], wy[s, j], wz[s, j] = cx, cy, cz
+                        ux, uy, uz = lm.fast_normalize(px[s, q] - cx, py[s, q] - cy, pz[s, q] - cz, fb.x, fb.y, fb.z)
+                        wx[s, q] = ti.select(on, wx[s, q] + w * (cx + length * ux), wx[s, q])
+                        wy[s, q] = ti.select(on, wy[s, q] + w * (cy + length * uy), wy[s, q])
+                        wz[s, q] = ti.select(on, wz[s, q] + w * (cz + length * uz), wz[s, q])
+                        aw[s, q] = ti.select(on, aw[s, q] + w, aw[s, q])
+                    # forward pass from the fixed root; the live lanes' proposals become their pose
+                    wx[s, 0], wy[s, 0], wz[s, 0] = px[s, 0], py[s, 0], pz[s, 0]
+                    for j in range(1, J):
+                        q = parent[j]
+                        length = offset[j].norm()
+                        fb = offset[j] / length
+                        on = aw[s, j] > 0.0
+                        bx, by, bz = wx[s, q], wy[s, q], wz[s, q]
+                        ux, uy, uz = lm.fast_normalize(wx[s, j] - bx, wy[s, j] - by, wz[s, j] - bz, fb.x, fb.y, fb.z)
+                        nx = ti.select(on, bx + length * ux, wx[s, j])
+                        ny = ti.select(on, by + length * uy, wy[s, j])
+                        nz = ti.select(on, bz + length * uz, wz[s, j])
+                        wx[s, j], wy[s, j], wz[s, j] = nx, ny, nz
+                        move = on & (live > 0.0)
+                        px[s, j] = ti.select(move, nx, px[s, j])
+                        py[s, j] = ti.select(move, ny, py[s, j])
+                        pz[s, j] = ti.select(move, nz, pz[s, j])
+                    new_err = lane_error(s, eff_joint, px, py, pz, tx, ty, tz, tw)
+                    going = live > 0.0
+                    it = it + live
+                    # stalled: STALL_AFTER updates in a row that improved the error by less than one part in FLAT
+                    flat = ti.select(going, ti.select(new_err > err * (1.0 - FLAT), flat + 1.0, 0.0), flat)
+                    err = ti.select(going, new_err, err)
+                    done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
+                                    | (err <= tolerance))
+                    pending = ti.select(done, 1.0, 0.0)
+                    live = ti.select(done, 0.0, live)
+
+    return solve
+
+
+@functools.cache
+def free_recover(L: int):
+    """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz, ga that free_solver left
+    in (P, J) lane rows, keeps the packet's world pose in fx, fy, fz, fqx, fqy, fqz, fqw (P, J) lane rows."""
+    V = ti.types.vector(L, ti.f32)
+
+    @ti.func
+    def swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, offset: ti.template(),
+                    child_list: ti.template(), gx: ti.template(), gy: ti.template(), gz: ti.template(),
+                    ga: ti.template()):
+        """fabrik.swing_round per lane: q turned by the weighted mean of the minimal swings aiming each active
+        child at its proposal (inverse base rotation i, joint position j)."""
+        ax, ay, az, aw_ = V(0.0), V(0.0), V(0.0), V(0.0)
+        for cc in range(c0, c1):
+            c = child_list[cc]
+            wc = ga[p, c]
+            on = wc > 0.0
+            o = offset[c]
+            ux, uy, uz = lm.qrot(qx, qy, qz, qw, V(o.x), V(o.y), V(o.z))
+            ux, uy, uz = lm.normalized(ux, uy, uz)
+            vx, vy, vz = lm.qrot(ix, iy, iz, iw, gx[p, c] - jx, gy[p, c] - jy, gz[p, c] - jz)
+            vx, vy, vz = lm.safe_normalize(vx, vy, vz, ux, uy, uz)
+            sx, sy, sz, sw = lm.swing(ux, uy, uz, vx, vy, vz)
+            flip = ti.select(sw < 0.0, -1.0, 1.0)
+            sx, sy, sz, sw = flip * sx, flip * sy, flip * sz, flip * sw
+            ax = ti.select(on, ax + wc * sx, ax)
+            ay = ti.select(on, ay + wc * sy, ay)
+            az = ti.select(on, az + wc * sz, az)
+            aw_ = ti.select(on, aw_ + wc * sw, aw_)
+        nx, ny, nz, nw = lm.qnormalize(ax, ay, az, aw_)
+        mx, my, mz, mw = lm.qmul(nx, ny, nz, nw, qx, qy, qz, qw)
+        return lm.qnormalize(mx, my, mz, mw)
+
+    @ti.kernel
+    def recover(
+        parent: ndarray(dtype=ti.i32, ndim=1),
+        offset: ndarray(dtype=vec3, ndim=1),
+        kind: ndarray(dtype=ti.i32, ndim=1),
+        child_start: ndarray(dtype=ti.i32, ndim=1),
+        child_list: ndarray(dtype=ti.i32, ndim=1),
+        eff_joint: ndarray(dtype=ti.i32, ndim=1),
+        root_pos: ndarray(dtype=vec3, ndim=1),
+        root_yaw: ndarray(ndim=1),
+        local_rot: ndarray(dtype=vec4, ndim=2),
+        world_pos: ndarray(dtype=vec3, ndim=2),
+        world_rot: ndarray(dtype=vec4, ndim=2),
+        targets: ndarray(dtype=vec3, ndim=2),
+        weights: ndarray(ndim=2),
+        gx: ndarray(dtype=V, ndim=2), gy: ndarray(dtype=V, ndim=2), gz: ndarray(dtype=V, ndim=2),
+        ga: ndarray(dtype=V, ndim=2),
+        fx: ndarray(dtype=V, ndim=2), fy: ndarray(dtype=V, ndim=2), fz: ndarray(dtype=V, ndim=2),
+        fqx: ndarray(dtype=V, ndim=2), fqy: ndarray(dtype=V, ndim=2), fqz: ndarray(dtype=V, ndim=2),
+        fqw: ndarray(dtype=V, ndim=2),
+        error: ndarray(ndim=1),
+        iterations: ndarray(dtype=ti.i32, ndim=1),
+    ):
+        """The characters that iterated get the rotations of their proposals, FK and that pose's error."""
+        N = root_pos.shape[0]
+        J = parent.shape[0]
+        for p in range(gx.shape[0]):
+            m = V(0.0)  # lanes whose character iterated
+            rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)
+            for l in ti.static(range(L)):
+                i = ti.min(p * L + l, N - 1)
+                if p * L + l < N and iterations[i] > 0:
+                    m[l] = 1.0
+                r = root_pos[i]
+                rx[l], ry[l], rz[l], h[l] = r.x, r.y, r.z, 0.5 * root_yaw[i]
+            if m.max() > 0.0:
+                for j in range(J):  # the local rotations first (fq rows hold them until the sweep reaches j)
+                    qx, qy, qz, qw = V(0.0), V(0.0), V(0.0), V(0.0)
+                    for l in ti.static(range(L)):
+                        qv = local_rot[ti.min(p * L + l, N - 1), j]
+                        qx[l], qy[l], qz[l], qw[l] = qv.x, qv.y, qv.z, qv.w
+                    fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j] = qx, qy, qz, qw
+                yx, yy, yz, yw = V(0.0), ti.sin(h), V(0.0), ti.cos(h)  # quat.yaw_quat
+                for j in range(J):
+                    par = parent[j]
+                    bx, by, bz, bqx, bqy, bqz, bqw = rx, ry, rz, yx, yy, yz, yw
+                    if par >= 0:
+                        bx, by, bz = fx[p, par], fy[p, par], fz[p, par]
+                        bqx, bqy, bqz, bqw = fqx[p, par], fqy[p, par], fqz[p, par], fqw[p, par]
+                    o = offset[j]
+                    ox, oy, oz = lm.qrot(bqx, bqy, bqz, bqw, V(o.x), V(o.y), V(o.z))
+                    jx, jy, jz = bx + ox, by + oy, bz + oz
+                    qx, qy, qz, qw = fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j]
+                    c0 = child_start[j]
+                    c1 = child_start[j + 1]
+                    if kind[j] > 0 and c1 > c0:
+                        n_active = V(0.0)
+                        for cc in range(c0, c1):
+                            n_active += ti.select(ga[p, child_list[cc]] > 0.0, 1.0, 0.0)
+                        turn = (ga[p, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
+                        if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
+                            ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
+                            sx, sy, sz, sw = swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
+                                                         offset, child_list, gx, gy, gz, ga)
+                            if ti.static(SWING_ROUNDS > 1):
+                                if n_active.max() > 1.0:  # a sub-base: refine (fabrik.SWING_ROUNDS rounds)
+                                    tx, ty, tz, tw = sx, sy, sz, sw
+                                    for _ in range(SWING_ROUNDS - 1):
+                                        tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw,
+                                                                     jx, jy, jz, offset, child_list, gx, gy, gz, ga)
+                                    several = n_active > 1.0
+                                    sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
+                                    sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
+                            qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
+                            qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
+                            for l in ti.static(range(L)):
+                                if turn[l]:
+                                    local_rot[p * L + l, j] = vec4(qx[l], qy[l], qz[l], qw[l])
+                    wqx, wqy, wqz, wqw = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
+                    fx[p, j], fy[p, j], fz[p, j] = jx, jy, jz
+                    fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j] = wqx, wqy, wqz, wqw
+                    for l in ti.static(range(L)):
+                        if m[l] > 0.0:
+                            world_pos[p * L + l, j] = vec3(jx[l], jy[l], jz[l])
+                            world_rot[p * L + l, j] = vec4(wqx[l], wqy[l], wqz[l], wqw[l])
+                for l in ti.static(range(L)):
+                    i = p * L + l
+                    if m[l] > 0.0:
+                        err = 0.0
+                        for e in range(eff_joint.shape[0]):
+                            if weights[i, e] > 0.0:
+                                err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
+                        error[i] = err
+
+    return recover

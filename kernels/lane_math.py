@@ -1,0 +1,95 @@
+"""Vector and quaternion helpers (@ti.func) on lane packets: each argument is a tuple of lane vectors.
+
+A 3-vector is (x, y, z), a quaternion (x, y, z, w), every component a ``ti.types.vector(L, ti.f32)``
+holding one character per lane; branches of the one-character helpers in kernels/quat.py become
+per-lane selects. Each helper performs the same floating-point operations in the same order as its
+twin in kernels/quat.py (and Taichi's own ``cross``, ``dot``, ``norm`` and ``normalized``), so a lane
+gets what the one-character kernel gets. The functions are generic in L: Taichi instantiates them for
+the lane vectors they are called with.
+"""
+
+import taichi as ti
+
+
+@ti.func
+def cross(ax, ay, az, bx, by, bz):
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@ti.func
+def dot3(ax, ay, az, bx, by, bz):
+    return ax * bx + ay * by + az * bz
+
+
+@ti.func
+def norm3(x, y, z):
+    return ti.sqrt(x * x + y * y + z * z + 0.0)
+
+
+@ti.func
+def normalized(x, y, z):
+    """v / |v| as Taichi's ``normalized`` computes it (times the reciprocal of the norm)."""
+    inv = 1.0 / norm3(x, y, z)
+    return inv * x, inv * y, inv * z
+
+
+@ti.func
+def safe_normalize(x, y, z, fx, fy, fz):
+    """Per lane: v / |v|, or the fallback where |v| <= 1e-9 (quat.safe_normalize)."""
+    n = norm3(x, y, z)
+    big = n > 1e-9
+    ns = ti.select(big, n, 1.0)
+    return ti.select(big, x / ns, fx), ti.select(big, y / ns, fy), ti.select(big, z / ns, fz)
+
+
+@ti.func
+def fast_normalize(x, y, z, fx, fy, fz):
+    """safe_normalize with one division: v times the reciprocal of |v| (within an ulp per component of
+    safe_normalize's quotients; the FABRIK passes are division-bound, and this removes two thirds of them)."""
+    n = norm3(x, y, z)
+    big = n > 1e-9
+    inv = 1.0 / ti.select(big, n, 1.0)
+    return ti.select(big, x * inv, fx), ti.select(big, y * inv, fy), ti.select(big, z * inv, fz)
+
+
+@ti.func
+def qmul(ax, ay, az, aw, bx, by, bz, bw):
+    """Hamilton product a * b (quat.qmul)."""
+    cx, cy, cz = cross(ax, ay, az, bx, by, bz)
+    return (aw * bx + bw * ax + cx, aw * by + bw * ay + cy, aw * bz + bw * az + cz,
+            aw * bw - dot3(ax, ay, az, bx, by, bz))
+
+
+@ti.func
+def qrot(qx, qy, qz, qw, vx, vy, vz):
+    """Rotate v by unit quaternion q (quat.qrot: t = 2 q.xyz x v; v + w t + q.xyz x t)."""
+    cx, cy, cz = cross(qx, qy, qz, vx, vy, vz)
+    tx, ty, tz = 2.0 * cx, 2.0 * cy, 2.0 * cz
+    ux, uy, uz = cross(qx, qy, qz, tx, ty, tz)
+    return vx + qw * tx + ux, vy + qw * ty + uy, vz + qw * tz + uz
+
+
+@ti.func
+def qnormalize(x, y, z, w):
+    """q / |q|, or the identity where |q| <= 1e-12 (quat.qnormalize)."""
+    n = ti.sqrt(x * x + y * y + z * z + w * w + 0.0)
+    big = n > 1e-12
+    ns = ti.select(big, n, 1.0)
+    return (ti.select(big, x / ns, 0.0), ti.select(big, y / ns, 0.0), ti.select(big, z / ns, 0.0),
+            ti.select(big, w / ns, 1.0))
+
+
+@ti.func
+def swing(ux, uy, uz, vx, vy, vz):
+    """The minimal rotation taking unit u to unit v (quat.swing), the antiparallel case per lane."""
+    d = dot3(ux, uy, uz, vx, vy, vz)
+    # antiparallel: a half turn about an axis perpendicular to u (x, else y where u is along x)
+    ax, ay, az = cross(ux, uy, uz, 1.0, 0.0, 0.0)
+    bx, by, bz = cross(ux, uy, uz, 0.0, 1.0, 0.0)
+    along_x = ax * ax + ay * ay + az * az < 1e-8
+    ax, ay, az = ti.select(along_x, bx, ax), ti.select(along_x, by, ay), ti.select(along_x, bz, az)
+    ax, ay, az = normalized(ax, ay, az)
+    cx, cy, cz = cross(ux, uy, uz, vx, vy, vz)
+    qx, qy, qz, qw = qnormalize(cx, cy, cz, 1.0 + d)
+    anti = d < -0.999999
+    return ti.select(anti, ax, qx), ti.select(anti, ay, qy), ti.select(anti, az, qz), ti.select(anti, 0.0, qw)
