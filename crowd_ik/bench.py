@@ -55,6 +55,7 @@ import numpy as np
 RIGS = ("chain16", "humanoid")
 SOLVERS = ("fabrik", "dls", "ccd")
 ARCHES = ("cpu", "cuda")
+PEERS = ("numba",)  # compiled peers the bench can time beside crowd_ik (crowd_ik/bench_peers.py)
 DEFAULT_CHARS = (100, 1000, 10000, 100000)
 CUDA_EXTRA_CHARS = 1_000_000  # added to chain16 on a CUDA arch when --chars is not given
 SEED = 20240601
@@ -93,6 +94,7 @@ class Options:
     game_frames: int
     quick: bool
     scene_steps: int = 0
+    peers: tuple[str, ...] = ()
 
 
 def _split(value: str, flag: str) -> list[str]:
@@ -157,8 +159,15 @@ def resolve_options(args) -> Options:
         if worst > MEMORY_LIMIT:
             raise ValueError(f"--chars: {max(chars)} characters of {rig_name} need about {worst / 2**30:.1f} GiB "
                              f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
+    peers = _choices(args.peers, "--peers", PEERS, ()) if getattr(args, "peers", None) is not None else ()
+    if peers:
+        from crowd_ik import bench_peers
+
+        if not bench_peers.available():
+            raise ValueError("--peers: numba is not installed (pip install -e '.[peers]')")
     return Options(chars, args.chars is not None, solvers, rigs, arches, threads, repeats, float(budget),
-                   int(game_chars), base["game_frames"], bool(args.quick), base["scene_steps"] if game_chars else 0)
+                   int(game_chars), base["game_frames"], bool(args.quick), base["scene_steps"] if game_chars else 0,
+                   peers)
 
 
 def _bytes_estimate(rig_name: str) -> int:
@@ -569,7 +578,9 @@ def child_main(spec_path: str, result_path: str) -> int:
                 bar.set_postfix_str(f"game scene {GAME_SCENE}")
                 game["scene"] = game_scene(spec["scene_steps"])
             bar.update(1)
-    result = dict(arch=arch, requested=spec["arch"],
+    from crowd_ik.solvers import settings
+
+    result = dict(arch=arch, requested=spec["arch"], lanes=settings.lanes(),
                   taichi_threads=int(ti.lang.impl.current_cfg().cpu_max_num_threads),
                   gpu=_gpu_name() if arch == "cuda" else None,
                   peak_rss_bytes=int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024,
@@ -694,6 +705,13 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def _isa() -> str:
+    """The widest SIMD instruction set of this CPU, as the lane width is chosen from it."""
+    from crowd_ik.solvers.settings import cpu_vector_lanes
+
+    return {16: "avx512", 8: "avx2"}.get(cpu_vector_lanes(), "sse")
+
+
 def _version(dist: str) -> str | None:
     from importlib import metadata
 
@@ -710,6 +728,8 @@ def command_line(opts: Options, arches: tuple[str, ...]) -> str:
     if opts.threads is not None:
         parts.append(f"--threads {opts.threads}")
     parts += [f"--repeats {opts.repeats}", f"--baseline-budget {opts.budget:g}", f"--game-chars {opts.game_chars}"]
+    if opts.peers:
+        parts.append(f"--peers {','.join(opts.peers)}")
     return " ".join(parts)
 
 
@@ -743,7 +763,9 @@ def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...], loa
         platform=platform.platform(), python=platform.python_version(), numpy=np.__version__,
         taichi=_version("taichi"), matplotlib=_version("matplotlib"), source=_source_state(),
         loadavg_before=load_before,
-        arches=[dict(requested=c["requested"], resolved=c["arch"], taichi_threads=c["taichi_threads"], gpu=c["gpu"],
+        isa=_isa(), peers=list(opts.peers),
+        arches=[dict(requested=c["requested"], resolved=c["arch"], lanes=c.get("lanes"),
+                     taichi_threads=c["taichi_threads"], gpu=c["gpu"],
                      peak_rss_bytes=c["peak_rss_bytes"], loadavg_start=c["loadavg_start"],
                      loadavg_end=c["loadavg_end"], compile=c["compile"]) for c in children],
         settings=dict(chars=list(opts.chars), solvers=list(opts.solvers), rigs=list(opts.rigs), repeats=opts.repeats,
@@ -972,14 +994,26 @@ def run(args) -> int:
         r.update(base or dict(numpy_solves_per_s=None, numpy_n=0, numpy_repeats=0))
         r["speedup"] = r["solves_per_s"] / base["numpy_solves_per_s"] if base else None
 
+    peer_targets = []
+    if opts.peers:
+        from crowd_ik import bench_peers
+
+        print("bench numba: timing the peers on the chain16 workloads", file=sys.stderr)
+        bench_peers.measure(records, make_workload, opts.repeats, opts.threads)
+        peer_targets = bench_peers.targets(records, _isa())
     result = dict(meta=build_meta(opts, children, arches, load_before), records=records, game=games,
-                  targets=evaluate_targets(records, games))
+                  targets=evaluate_targets(records, games) + peer_targets)
     missing = [s for s in opts.solvers if _reference_solver(s) is None]
     if missing:
         result["meta"]["notes"].append(f"no NumPy twin for {', '.join(missing)}: no baseline or speed-up for it")
 
     print(format_table(records))
+    if opts.peers:
+        from crowd_ik import bench_peers
+
+        print(bench_peers.format_table(records))
     for c in children:
+        print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({_isa()})")
         for key, info in c["compile"].items():
             print(f"compile {c['arch']} {key}: first call {info['first_call_s']:.2f} s, steady {info['steady_s']:.3f} s "
                   f"on {info['n']} characters -> compile {info['compile_s']:.2f} s")

@@ -1,7 +1,7 @@
 """The `crowd-ik bench --plot` chart: solves per second against character count, log-log.
 
 One panel per rig; a solid line per (solver, backend), the NumPy baseline of each solver dashed in
-the same colour. Drawn on a bare matplotlib Figure with the Agg canvas (no pyplot state, no display).
+the same colour, and the float64 numba peer (``--peers numba``) dotted. Drawn on a bare matplotlib Figure with the Agg canvas (no pyplot state, no display).
 """
 
 from __future__ import annotations
@@ -53,6 +53,15 @@ def draw(result: dict, path: str | Path, dpi: int = 120) -> None:
             n, y = zip(*pts)
             ax.plot(n, y, color=COLOURS.get(solver, "k"), marker=MARKERS.get(arch, "s"), lw=2,
                     label=f"{solver} (Taichi {arch})")
+        peers = {}
+        for r in sorted(records, key=lambda r: r["n"]):
+            if r["rig"] == rig and r.get("numba_f64_solves_per_s"):
+                pts = peers.setdefault(r["solver"], [])
+                if all(n != r["n"] for n, _ in pts):
+                    pts.append((r["n"], r["numba_f64_solves_per_s"]))
+        for solver, pts in peers.items():
+            ax.plot(*zip(*pts), color=COLOURS.get(solver, "k"), ls=":", marker="x", lw=1.5,
+                    label=f"{solver} (numba f64 peer)")
         for solver, pts in numpy.items():
             n, y, subset = zip(*pts)
             colour = COLOURS.get(solver, "k")
@@ -85,7 +94,7 @@ def draw(result: dict, path: str | Path, dpi: int = 120) -> None:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             legend.setdefault(label, handle)
     fig.legend(legend.values(), legend.keys(), loc="outside lower center", ncol=min(len(legend), 6), fontsize="small",
-               title="solid: Taichi; dashed: vectorised NumPy twins; hollow squares: NumPy timed on a subset of the "
+               title="solid: Taichi; dashed: vectorised NumPy twins; dotted: numba peers; hollow squares: NumPy timed on a subset of the "
                      "characters (its time budget)", title_fontsize="small", frameon=False)
     fig.savefig(path, dpi=dpi)
 

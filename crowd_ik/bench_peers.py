@@ -155,3 +155,73 @@ def solve(method: str, start: np.ndarray, targets: np.ndarray, tolerance: float,
     else:
         k(pos, tg, dtype(tolerance), max_iterations, dtype(DLS_LAMBDA), iters, err)
     return dict(time_s=time.perf_counter() - t0, error=err.astype(np.float64), iterations=iters, positions=pos)
+
+
+PEER_METHODS = ("fabrik", "dls")  # the solvers that have a numba peer
+PEER_RIG = "chain16"              # the workload the peers solve (one chain, one effector)
+DTYPES = {"f64": np.float64, "f32": np.float32}
+
+
+def measure(records: list[dict], make_workload, repeats: int, threads: int | None = None) -> list[dict]:
+    """Time the numba peers on the workload of every chain16 FABRIK / DLS record, in float64 and float32, and add
+    to each record ``numba_<dtype>_solves_per_s`` (best of `repeats`), ``..._success_rate``,
+    ``..._mean_iterations`` and ``vs_numba_<dtype>`` (crowd_ik's solves/s over the peer's). Returns the records
+    it filled. The first call of each kernel (numba's compile) is not timed."""
+    import numba
+
+    from crowd_ik.reference.fk import forward_kinematics
+
+    if threads is not None:
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    filled = []
+    for r in records:
+        if r["rig"] != PEER_RIG or r["solver"] not in PEER_METHODS:
+            continue
+        wl = make_workload(PEER_RIG, r["n"])
+        start, _ = forward_kinematics(wl.rig, wl.roots.astype(np.float64), np.zeros(wl.n), wl.rotations())
+        targets = wl.targets[:, 0].astype(np.float64)
+        for name, dtype in DTYPES.items():
+            solve(r["solver"], start[:8], targets[:8], wl.tolerance, wl.max_iterations, dtype)  # compile
+            runs = [solve(r["solver"], start, targets, wl.tolerance, wl.max_iterations, dtype) for _ in range(repeats)]
+            best = min(runs, key=lambda x: x["time_s"])
+            rate = wl.n / best["time_s"]
+            r[f"numba_{name}_solves_per_s"] = rate
+            r[f"numba_{name}_success_rate"] = float(np.mean(best["error"] <= wl.tolerance))
+            r[f"numba_{name}_mean_iterations"] = float(np.mean(best["iterations"]))
+            r[f"vs_numba_{name}"] = r["solves_per_s"] / rate
+        filled.append(r)
+    return filled
+
+
+def format_table(records: list[dict]) -> str:
+    """crowd_ik beside the numba peers, one row per chain16 FABRIK / DLS record."""
+    rows = [r for r in records if "numba_f64_solves_per_s" in r]
+    if not rows:
+        return ""
+    head = ("arch", "solver", "N", "crowd_ik/s", "success", "numba f64/s", "success", "vs f64", "numba f32/s",
+            "vs f32")
+    body = [(r["arch"], r["solver"], f"{r['n']:,}", f"{r['solves_per_s']:,.0f}", f"{100 * r['success_rate']:.1f}%",
+             f"{r['numba_f64_solves_per_s']:,.0f}", f"{100 * r['numba_f64_success_rate']:.1f}%",
+             f"{r['vs_numba_f64']:.2f}x", f"{r['numba_f32_solves_per_s']:,.0f}", f"{r['vs_numba_f32']:.2f}x")
+            for r in rows]
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
+    fmt = lambda row: "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w)  # noqa: E731
+                                for i, (c, w) in enumerate(zip(row, widths)))
+    return "\n".join(["chain16 against numba peers (one chain per thread, prange; crowd_ik/bench_peers.py):",
+                      fmt(head), fmt(["-" * w for w in widths]), *map(fmt, body)])
+
+
+def targets(records: list[dict], isa: str) -> list[dict]:
+    """The SIMD-lanes issue's goals against the float64 numba peer: FABRIK >= 3x (2x without AVX-512), DLS >= 2x
+    (1.5x), each at the largest N measured."""
+    out = []
+    goals = {"fabrik": 3.0 if isa == "avx512" else 2.0, "dls": 2.0 if isa == "avx512" else 1.5}
+    for arch in dict.fromkeys(r["arch"] for r in records):
+        for solver, goal in goals.items():
+            mine = [r for r in records if r["arch"] == arch and r["solver"] == solver and "vs_numba_f64" in r]
+            if mine:
+                top = max(mine, key=lambda r: r["n"])
+                out.append(dict(name=f"chain16 {solver} vs the float64 numba peer ({isa})", arch=arch, n=top["n"],
+                                goal=f">= {goal:g}x", unit="x", value=top["vs_numba_f64"],
+                                met=bool(top["vs_numba_f64"] >= goal)))
+    return out

@@ -84,6 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="seconds of NumPy baseline per cell, 0 to skip it (default 10; --quick 1)")
     bench.add_argument("--game-chars", type=int, default=None, metavar="N",
                        help="humanoids in the warm-start game workload, 0 to skip it (default 10000; --quick 256)")
+    bench.add_argument("--peers", default=None, metavar="numba",
+                       help="also time compiled peers on chain16 FABRIK/DLS (numba: pip install -e '.[peers]')")
     bench.add_argument("--quick", action="store_true", help="small defaults for a smoke test (explicit flags win)")
     bench.add_argument("--force", action="store_true", help="overwrite existing outputs")
     bench.set_defaults(handler="crowd_ik.bench:run")

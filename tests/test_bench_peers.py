@@ -1,0 +1,65 @@
+"""The numba peers of `crowd-ik bench --peers numba`: correct solvers, filled records, the ratio targets."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba")
+
+from crowd_ik import bench, bench_peers  # noqa: E402
+
+
+def _chain_start(n, J=17, bone=0.1):
+    start = np.zeros((n, J, 3))
+    start[:, :, 0] = np.arange(J) * bone
+    return start
+
+
+@pytest.mark.parametrize("method", ["fabrik", "dls"])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_peers_reach_reachable_targets_and_keep_bone_lengths(method, dtype):
+    rng = np.random.default_rng(3)
+    n = 64
+    d = rng.normal(size=(n, 3))
+    targets = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0.2, 1.4, (n, 1))
+    out = bench_peers.solve(method, _chain_start(n), targets, 1.6e-3, 100, dtype)
+    tip = out["positions"][:, -1]
+    err = np.linalg.norm(tip - targets, axis=1)
+    assert np.mean(out["error"] <= 1.6e-3) >= 0.95
+    np.testing.assert_allclose(out["error"], err, atol=1e-4)  # the error it reports is the tip's
+    bones = np.linalg.norm(np.diff(out["positions"], axis=1), axis=-1)
+    np.testing.assert_allclose(bones, 0.1, atol=1e-4 if dtype == np.float32 else 1e-9)
+    np.testing.assert_allclose(out["positions"][:, 0], 0.0, atol=1e-12)  # the root stays
+    assert out["iterations"].max() > 1
+
+
+def test_peer_leaves_the_start_array_alone():
+    start = _chain_start(4)
+    before = start.copy()
+    bench_peers.solve("fabrik", start, np.full((4, 3), 0.5), 1e-3, 10)
+    np.testing.assert_array_equal(start, before)
+
+
+def test_measure_fills_chain16_records_and_targets():
+    records = [dict(arch="cpu", rig="chain16", solver="fabrik", n=64, solves_per_s=1e6, success_rate=1.0),
+               dict(arch="cpu", rig="chain16", solver="ccd", n=64, solves_per_s=1e6, success_rate=1.0),
+               dict(arch="cpu", rig="humanoid", solver="fabrik", n=64, solves_per_s=1e6, success_rate=1.0)]
+    filled = bench_peers.measure(records, bench.make_workload, repeats=1, threads=1)
+    assert filled == [records[0]]
+    r = records[0]
+    assert r["numba_f64_success_rate"] >= 0.95 and r["numba_f64_mean_iterations"] > 1
+    assert r["vs_numba_f64"] == pytest.approx(1e6 / r["numba_f64_solves_per_s"])
+    assert "numba_f64_solves_per_s" not in records[1] and "numba_f64_solves_per_s" not in records[2]
+    text = bench_peers.format_table(records)
+    assert "numba f64/s" in text and f"{r['vs_numba_f64']:.2f}x" in text
+    (t,) = bench_peers.targets(records, "avx512")
+    assert t["goal"] == ">= 3x" and t["met"] == (r["vs_numba_f64"] >= 3.0)
+    (t,) = bench_peers.targets(records, "avx2")
+    assert t["goal"] == ">= 2x"
+
+
+def test_peers_flag_is_checked(capsys):
+    from crowd_ik.cli import main
+
+    assert main(["bench", "--peers", "julia", "--quick"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--peers" in err[0] and "julia" in err[0]
