@@ -116,6 +116,8 @@ class Crowd:
             shape = value.shape
             if key in ("offset", "eff_axis"):
                 arr = ti.ndarray(ti.math.vec3, shape=shape[:1])
+            elif key == "bone":
+                arr = ti.ndarray(ti.math.vec4, shape=shape[:1])
             elif key == "axes":
                 arr = ti.ndarray(ti.math.vec3, shape=shape[:2])
             else:
@@ -378,7 +380,7 @@ class Crowd:
 
         proposals = rows("gx gy gz ga", (P, J))
         fabrik_lanes.free_solver(L)(
-            ra["parent"], ra["offset"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
+            ra["parent"], ra["bone"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
             *rows("px py pz wx wy wz aw", (S, J)), *rows("tx ty tz tw", (S, E)), *proposals,
             max_iterations, tolerance, self._error, self._iters, self._stalled,
         )

@@ -283,7 +283,8 @@ class Rig:
         parent (J,), offset (J,3), kind (J,) 0 fixed/1 hinge/2 universal/3 ball, axes (J,2,3),
         dof_start (J,), lo/hi (DOF+1,) (one padding entry so a DOF-less rig still has an array), lim_p (DOF+1, 2)
         their pseudo-angles (reference.quat.limit_pseudo_angles),
-        cone (J,) (0 = none), eff_joint (E,), eff_axis (E,3), eff_has_axis (E,), radius (J,).
+        cone (J,) (0 = none), eff_joint (E,), eff_axis (E,3), eff_has_axis (E,), radius (J,), bone (J, 4): the
+        unit direction of each joint's offset and its length (the root's: 0), which FABRIK's passes use.
         """
         J, D = self.n_joints, self.n_dof
         axes = np.zeros((J, 2, 3), np.float32)
@@ -309,6 +310,11 @@ class Rig:
             child_start=np.concatenate([[0], np.cumsum([len(c) for c in self.children])]).astype(np.int32),
             child_list=np.array([c for kids in self.children for c in kids] or [0], np.int32),
         )
+        offset = out["offset"].astype(np.float32)
+        length = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + offset[:, 2] * offset[:, 2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            direction = np.where(length[:, None] > 0, offset / np.maximum(length, 1e-30)[:, None], 0.0)
+        out["bone"] = np.concatenate([direction, length[:, None]], axis=1).astype(np.float32)
         assert D == len(lo)
         return {k: np.ascontiguousarray(v) for k, v in out.items()}
 

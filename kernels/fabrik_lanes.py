@@ -68,7 +68,7 @@ def free_solver(L: int):
     @ti.kernel
     def solve(
         parent: ndarray(dtype=ti.i32, ndim=1),
-        offset: ndarray(dtype=vec3, ndim=1),
+        bone: ndarray(dtype=vec4, ndim=1),
         eff_joint: ndarray(dtype=ti.i32, ndim=1),
         world_pos: ndarray(dtype=vec3, ndim=2),
         targets: ndarray(dtype=vec3, ndim=2),
@@ -160,8 +160,9 @@ def free_solver(L: int):
                     for jj in range(J - 1):
                         j = J - 1 - jj
                         q = parent[j]
-                        length = offset[j].norm()
-                        fb = -offset[j] / length
+                        b = bone[j]  # the offset's direction and length
+                        length = b.w
+                        fb = -b.xyz
                         w = aw[s, j]
                         on = w > 0.0
                         ws = ti.select(on, w, 1.0)
@@ -177,8 +178,9 @@ def free_solver(L: int):
                     wx[s, 0], wy[s, 0], wz[s, 0] = px[s, 0], py[s, 0], pz[s, 0]
                     for j in range(1, J):
                         q = parent[j]
-                        length = offset[j].norm()
-                        fb = offset[j] / length
+                        b = bone[j]
+                        length = b.w
+                        fb = b.xyz
                         on = aw[s, j] > 0.0
                         bx, by, bz = wx[s, q], wy[s, q], wz[s, q]
                         ux, uy, uz = lm.fast_normalize(wx[s, j] - bx, wy[s, j] - by, wz[s, j] - bz, fb.x, fb.y, fb.z)
