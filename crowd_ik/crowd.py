@@ -366,28 +366,25 @@ class Crowd:
         )
 
     def _solve_fabrik_free(self, max_iterations: int, tolerance: float) -> None:
-        """FABRIK on a constraint-free rig: L characters per thread as SIMD lanes, then the rotations once."""
+        """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
         from crowd_ik.kernels import fabrik_lanes
         from crowd_ik.solvers import settings
 
         ra, ti, L = self.rig_arrays, self._ti, settings.lanes()
         J, E = self.rig.n_joints, self.rig.n_effectors
-        S, P = fabrik_lanes.streams(self.n, L), fabrik_lanes.packets(self.n, L)
+        LP = fabrik_lanes.pass_lanes(L)
+        P = fabrik_lanes.packets(self.n, L)
         V = ti.types.vector(L, ti.f32)
-
-        def rows(names: str, shape: tuple) -> list:
-            return [self.scratch(f"fabrik_lanes_{k}", V, shape) for k in names.split()]
-
-        proposals = rows("gx gy gz ga", (P, J))
-        fabrik_lanes.free_solver(L)(
+        proposals = [self.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
+        fabrik_lanes.free_solver(LP, L, fabrik_lanes.capacity(J), fabrik_lanes.capacity(E))(
             ra["parent"], ra["bone"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
-            *rows("px py pz wx wy wz aw", (S, J)), *rows("tx ty tz tw", (S, E)), *proposals,
-            max_iterations, tolerance, self._error, self._iters, self._stalled,
+            fabrik_lanes.streams(self.n, LP), *proposals, max_iterations, tolerance, self._error, self._iters,
+            self._stalled,
         )
-        fabrik_lanes.free_recover(L)(
+        fabrik_lanes.free_recover(L, fabrik_lanes.capacity(J))(
             ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets,
-            self._weights, *proposals, *rows("fx fy fz fqx fqy fqz fqw", (P, J)), self._error, self._iters,
+            self._weights, *proposals, min(P, fabrik_lanes.MAX_STREAMS), self._error, self._iters,
         )
 
     def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:

@@ -1,25 +1,29 @@
-"""FABRIK on constraint-free rigs with L characters per CPU thread as SIMD lanes.
+"""FABRIK on constraint-free rigs with many characters per CPU thread as SIMD lanes.
 
-Each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``: a packet's joint j
-is three lane vectors (x, y, z) in a scratch ndarray row, every operation is element-wise, so Taichi's
-CPU backend emits packed vector code (16 float32 lanes with AVX-512), and branches become per-lane
-selects (kernels/lane_math.py).
+Each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``: joint j of a packet
+is three lane vectors (x, y, z), every operation is element-wise, so Taichi's CPU backend emits packed
+vector code, and branches become per-lane selects (kernels/lane_math.py).
 
-Two kernels, both built per lane width by cached factories (importing this module creates no Taichi
-state; crowd_ik/solvers/settings.py chooses L):
+Two kernels, built per lane width and scratch size by cached factories (importing this module creates
+no Taichi state; crowd_ik/solvers/settings.py chooses the machine's width L):
 
-- :func:`free_solver` moves the joints. It runs S streams, each a contiguous range of characters
-  worked through by L lanes: when a lane's character converges, stalls or runs out of iterations, its
-  result is written out and the lane takes the stream's next character. So a stream costs the sum of
-  its characters' iterations over L, not L times the slowest one's (chain16: a 16-lane packet's slowest
-  character takes 2.8 times the mean iterations). A stream stops when no lane has work.
-- :func:`free_recover` then recovers the rotations of the final positions, once, for L consecutive
+- :func:`free_solver` moves the joints. It runs S streams, each a contiguous range of characters worked
+  through by :func:`pass_lanes` (2L) lanes: when a lane's character converges, stalls or runs out of
+  iterations, its result is written out and the lane takes the stream's next character. So a stream
+  costs the sum of its characters' iterations over the lane count, not the lane count times the slowest
+  one's (chain16: a 16-lane packet's slowest character takes 2.8 times the mean iterations). A stream
+  stops when no lane has work.
+- :func:`free_recover` then recovers the rotations of the final positions, once, L consecutive
   characters at a time (exact on a chain; at a sub-base the best fit, as kernels/fabrik.py's
   recover_and_constrain does for unlimited ball joints), runs FK and measures the fitted pose's error.
 
-Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's backward and forward
-passes and recovery; the NumPy twin's ``fabrik_solve`` without constraints), in the same order, so
-statuses and iteration counts match it and results do not depend on a character's lane-mates.
+The streams' scratch lives in fields of compile-time shape (MAX_STREAMS rows of a power-of-two joint
+capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after every store to any array,
+and that integer work was a third of the passes' instructions (chain16, 16,384 characters: 13.9 -> 8.8
+ms). Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's passes and
+recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same order, except that a
+normalisation multiplies by one reciprocal (lane_math.fast_normalize), so statuses and iteration counts
+match it and results do not depend on a character's lane-mates.
 """
 
 import functools
@@ -32,6 +36,7 @@ from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
+MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
 CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
 
 
@@ -40,19 +45,38 @@ def packets(n: int, lanes: int) -> int:
     return (n + lanes - 1) // lanes
 
 
+def pass_lanes(lanes: int) -> int:
+    """Lanes per stream of free_solver for the machine's width: two vectors per value (at most 32 lanes). Each
+    joint's update is a dependent sqrt-then-divide chain; two independent halves hide its latency (chain16,
+    16,384 characters, AVX-512: 8.6 -> 7.1 ms). The recovery keeps one vector per value: its larger working
+    set spills at twice the width (5.2 -> 9.2 ms)."""
+    return min(2 * lanes, 32)
+
+
+def capacity(n: int) -> int:
+    """The scratch fields' size for n joints or effectors: the next power of two (a kernel per size class)."""
+    return 1 << max(2, (n - 1).bit_length())
+
+
 def streams(n: int, lanes: int) -> int:
     """Streams free_solver runs for n characters: about CHARS_PER_LANE characters per lane, and at least
     as many streams as packets up to 8 (small crowds still use every thread)."""
-    return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE))))
+    return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE)), MAX_STREAMS))
 
 
 @functools.cache
-def free_solver(L: int):
-    """The joint-moving kernel for lane width L. Scratch per stream s: (S, J) lane rows px, py, pz (pose),
-    wx, wy, wz, aw (proposals and their weights), (S, E) rows tx, ty, tz, tw (targets, weights).
-    Output per character i in (P, J) lane rows [i // L][i % L]: gx, gy, gz, ga, the last proposals."""
+def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
+    """The joint-moving kernel for L lanes per stream. Scratch per stream s (fields of max_joints and
+    max_effectors rows): px, py, pz (pose), wx, wy, wz, aw (proposals and their weights), tx, ty, tz, tw
+    (targets, weights). Output per character i in (P, J) rows of LO lanes, [i // LO][i % LO]: gx, gy, gz, ga,
+    the last proposals, laid out for free_recover(LO)."""
     V = ti.types.vector(L, ti.f32)
+    VO = ti.types.vector(LO, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
+    # the streams' scratch in fields: their shapes are compile-time constants, so an access is one multiply-add
+    # from a fixed base (an ndarray's pointer and shape are reloaded after every store to any array)
+    px, py, pz, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
+    tx, ty, tz, tw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_effectors)) for _ in range(4))
 
     @ti.func
     def lane_error(s, eff_joint: ti.template(), px: ti.template(), py: ti.template(), pz: ti.template(),
@@ -73,13 +97,9 @@ def free_solver(L: int):
         world_pos: ndarray(dtype=vec3, ndim=2),
         targets: ndarray(dtype=vec3, ndim=2),
         weights: ndarray(ndim=2),
-        px: ndarray(dtype=V, ndim=2), py: ndarray(dtype=V, ndim=2), pz: ndarray(dtype=V, ndim=2),
-        wx: ndarray(dtype=V, ndim=2), wy: ndarray(dtype=V, ndim=2), wz: ndarray(dtype=V, ndim=2),
-        aw: ndarray(dtype=V, ndim=2),
-        tx: ndarray(dtype=V, ndim=2), ty: ndarray(dtype=V, ndim=2), tz: ndarray(dtype=V, ndim=2),
-        tw: ndarray(dtype=V, ndim=2),
-        gx: ndarray(dtype=V, ndim=2), gy: ndarray(dtype=V, ndim=2), gz: ndarray(dtype=V, ndim=2),
-        ga: ndarray(dtype=V, ndim=2),
+        n_streams: ti.i32,
+        gx: ndarray(dtype=VO, ndim=2), gy: ndarray(dtype=VO, ndim=2), gz: ndarray(dtype=VO, ndim=2),
+        ga: ndarray(dtype=VO, ndim=2),
         max_iterations: ti.i32,
         tolerance: ti.f32,
         error: ndarray(ndim=1),
@@ -91,7 +111,7 @@ def free_solver(L: int):
         N = world_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
-        S = px.shape[0]
+        S = n_streams
         chunk = (N + S - 1) // S
         ti.loop_config(block_dim=1)  # streams end at different times: hand them out one at a time
         for s in range(S):
@@ -112,10 +132,10 @@ def free_solver(L: int):
                             iterations[i] = ti.cast(it[l], ti.i32)
                             stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
                             for j in range(J):
-                                gx[i // L, j][i % L] = wx[s, j][l]
-                                gy[i // L, j][i % L] = wy[s, j][l]
-                                gz[i // L, j][i % L] = wz[s, j][l]
-                                ga[i // L, j][i % L] = aw[s, j][l]
+                                gx[i // LO, j][i % LO] = wx[s, j][l]
+                                gy[i // LO, j][i % LO] = wy[s, j][l]
+                                gz[i // LO, j][i % LO] = wz[s, j][l]
+                                ga[i // LO, j][i % LO] = aw[s, j][l]
                         cur[l] = -1
                         live[l] = 0.0
                         while nxt < end and cur[l] < 0:  # take the next character that needs iterations
@@ -207,10 +227,11 @@ def free_solver(L: int):
 
 
 @functools.cache
-def free_recover(L: int):
+def free_recover(L: int, max_joints: int):
     """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz, ga that free_solver left
-    in (P, J) lane rows, keeps the packet's world pose in fx, fy, fz, fqx, fqy, fqz, fqw (P, J) lane rows."""
+    in (P, J) lane rows; each stream keeps its packet's world pose in field rows fx, fy, fz, fqx, fqy, fqz, fqw."""
     V = ti.types.vector(L, ti.f32)
+    fx, fy, fz, fqx, fqy, fqz, fqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
 
     @ti.func
     def swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, offset: ti.template(),
@@ -256,81 +277,83 @@ def free_recover(L: int):
         weights: ndarray(ndim=2),
         gx: ndarray(dtype=V, ndim=2), gy: ndarray(dtype=V, ndim=2), gz: ndarray(dtype=V, ndim=2),
         ga: ndarray(dtype=V, ndim=2),
-        fx: ndarray(dtype=V, ndim=2), fy: ndarray(dtype=V, ndim=2), fz: ndarray(dtype=V, ndim=2),
-        fqx: ndarray(dtype=V, ndim=2), fqy: ndarray(dtype=V, ndim=2), fqz: ndarray(dtype=V, ndim=2),
-        fqw: ndarray(dtype=V, ndim=2),
+        n_streams: ti.i32,
         error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1),
     ):
         """The characters that iterated get the rotations of their proposals, FK and that pose's error."""
         N = root_pos.shape[0]
         J = parent.shape[0]
-        for p in range(gx.shape[0]):
-            m = V(0.0)  # lanes whose character iterated
-            rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)
-            for l in ti.static(range(L)):
-                i = ti.min(p * L + l, N - 1)
-                if p * L + l < N and iterations[i] > 0:
-                    m[l] = 1.0
-                r = root_pos[i]
-                rx[l], ry[l], rz[l], h[l] = r.x, r.y, r.z, 0.5 * root_yaw[i]
-            if m.max() > 0.0:
-                for j in range(J):  # the local rotations first (fq rows hold them until the sweep reaches j)
-                    qx, qy, qz, qw = V(0.0), V(0.0), V(0.0), V(0.0)
-                    for l in ti.static(range(L)):
-                        qv = local_rot[ti.min(p * L + l, N - 1), j]
-                        qx[l], qy[l], qz[l], qw[l] = qv.x, qv.y, qv.z, qv.w
-                    fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j] = qx, qy, qz, qw
-                yx, yy, yz, yw = V(0.0), ti.sin(h), V(0.0), ti.cos(h)  # quat.yaw_quat
-                for j in range(J):
-                    par = parent[j]
-                    bx, by, bz, bqx, bqy, bqz, bqw = rx, ry, rz, yx, yy, yz, yw
-                    if par >= 0:
-                        bx, by, bz = fx[p, par], fy[p, par], fz[p, par]
-                        bqx, bqy, bqz, bqw = fqx[p, par], fqy[p, par], fqz[p, par], fqw[p, par]
-                    o = offset[j]
-                    ox, oy, oz = lm.qrot(bqx, bqy, bqz, bqw, V(o.x), V(o.y), V(o.z))
-                    jx, jy, jz = bx + ox, by + oy, bz + oz
-                    qx, qy, qz, qw = fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j]
-                    c0 = child_start[j]
-                    c1 = child_start[j + 1]
-                    if kind[j] > 0 and c1 > c0:
-                        n_active = V(0.0)
-                        for cc in range(c0, c1):
-                            n_active += ti.select(ga[p, child_list[cc]] > 0.0, 1.0, 0.0)
-                        turn = (ga[p, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
-                        if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
-                            ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
-                            sx, sy, sz, sw = swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
-                                                         offset, child_list, gx, gy, gz, ga)
-                            if ti.static(SWING_ROUNDS > 1):
-                                if n_active.max() > 1.0:  # a sub-base: refine (fabrik.SWING_ROUNDS rounds)
-                                    tx, ty, tz, tw = sx, sy, sz, sw
-                                    for _ in range(SWING_ROUNDS - 1):
-                                        tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw,
-                                                                     jx, jy, jz, offset, child_list, gx, gy, gz, ga)
-                                    several = n_active > 1.0
-                                    sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
-                                    sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
-                            qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
-                            qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
-                            for l in ti.static(range(L)):
-                                if turn[l]:
-                                    local_rot[p * L + l, j] = vec4(qx[l], qy[l], qz[l], qw[l])
-                    wqx, wqy, wqz, wqw = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
-                    fx[p, j], fy[p, j], fz[p, j] = jx, jy, jz
-                    fqx[p, j], fqy[p, j], fqz[p, j], fqw[p, j] = wqx, wqy, wqz, wqw
-                    for l in ti.static(range(L)):
-                        if m[l] > 0.0:
-                            world_pos[p * L + l, j] = vec3(jx[l], jy[l], jz[l])
-                            world_rot[p * L + l, j] = vec4(wqx[l], wqy[l], wqz[l], wqw[l])
+        P = gx.shape[0]
+        chunk = (P + n_streams - 1) // n_streams
+        ti.loop_config(block_dim=1)
+        for s in range(n_streams):
+            for p in range(s * chunk, ti.min(s * chunk + chunk, P)):
+                m = V(0.0)  # lanes whose character iterated
+                rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)
                 for l in ti.static(range(L)):
-                    i = p * L + l
-                    if m[l] > 0.0:
-                        err = 0.0
-                        for e in range(eff_joint.shape[0]):
-                            if weights[i, e] > 0.0:
-                                err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
-                        error[i] = err
+                    i = ti.min(p * L + l, N - 1)
+                    if p * L + l < N and iterations[i] > 0:
+                        m[l] = 1.0
+                    r = root_pos[i]
+                    rx[l], ry[l], rz[l], h[l] = r.x, r.y, r.z, 0.5 * root_yaw[i]
+                if m.max() > 0.0:
+                    for j in range(J):  # the local rotations first (fq rows hold them until the sweep reaches j)
+                        qx, qy, qz, qw = V(0.0), V(0.0), V(0.0), V(0.0)
+                        for l in ti.static(range(L)):
+                            qv = local_rot[ti.min(p * L + l, N - 1), j]
+                            qx[l], qy[l], qz[l], qw[l] = qv.x, qv.y, qv.z, qv.w
+                        fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = qx, qy, qz, qw
+                    yx, yy, yz, yw = V(0.0), ti.sin(h), V(0.0), ti.cos(h)  # quat.yaw_quat
+                    for j in range(J):
+                        par = parent[j]
+                        bx, by, bz, bqx, bqy, bqz, bqw = rx, ry, rz, yx, yy, yz, yw
+                        if par >= 0:
+                            bx, by, bz = fx[s, par], fy[s, par], fz[s, par]
+                            bqx, bqy, bqz, bqw = fqx[s, par], fqy[s, par], fqz[s, par], fqw[s, par]
+                        o = offset[j]
+                        ox, oy, oz = lm.qrot(bqx, bqy, bqz, bqw, V(o.x), V(o.y), V(o.z))
+                        jx, jy, jz = bx + ox, by + oy, bz + oz
+                        qx, qy, qz, qw = fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j]
+                        c0 = child_start[j]
+                        c1 = child_start[j + 1]
+                        if kind[j] > 0 and c1 > c0:
+                            n_active = V(0.0)
+                            for cc in range(c0, c1):
+                                n_active += ti.select(ga[p, child_list[cc]] > 0.0, 1.0, 0.0)
+                            turn = (ga[p, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
+                            if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
+                                ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
+                                sx, sy, sz, sw = swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
+                                                             offset, child_list, gx, gy, gz, ga)
+                                if ti.static(SWING_ROUNDS > 1):
+                                    if n_active.max() > 1.0:  # a sub-base: refine (fabrik.SWING_ROUNDS rounds)
+                                        tx, ty, tz, tw = sx, sy, sz, sw
+                                        for _ in range(SWING_ROUNDS - 1):
+                                            tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw,
+                                                                         jx, jy, jz, offset, child_list, gx, gy, gz, ga)
+                                        several = n_active > 1.0
+                                        sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
+                                        sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
+                                qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
+                                qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
+                                for l in ti.static(range(L)):
+                                    if turn[l]:
+                                        local_rot[p * L + l, j] = vec4(qx[l], qy[l], qz[l], qw[l])
+                        wqx, wqy, wqz, wqw = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
+                        fx[s, j], fy[s, j], fz[s, j] = jx, jy, jz
+                        fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = wqx, wqy, wqz, wqw
+                        for l in ti.static(range(L)):
+                            if m[l] > 0.0:
+                                world_pos[p * L + l, j] = vec3(jx[l], jy[l], jz[l])
+                                world_rot[p * L + l, j] = vec4(wqx[l], wqy[l], wqz[l], wqw[l])
+                    for l in ti.static(range(L)):
+                        i = p * L + l
+                        if m[l] > 0.0:
+                            err = 0.0
+                            for e in range(eff_joint.shape[0]):
+                                if weights[i, e] > 0.0:
+                                    err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
+                            error[i] = err
 
     return recover
