@@ -347,12 +347,17 @@ class Crowd:
         return SolveReport(error=error, iterations=iters, status=status, method=method)
 
     def _solve_fabrik(self, max_iterations: int, tolerance: float, params: dict) -> None:
+        if self.rig.constraint_free and self._orient_zero:
+            self._solve_fabrik_free(max_iterations, tolerance)
+        else:
+            self._solve_fabrik_general(max_iterations, tolerance, recover_each_iteration=1)
+
+    def _solve_fabrik_general(self, max_iterations: int, tolerance: float, recover_each_iteration: int) -> None:
+        """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
+        constraint-free rigs without orientation targets (the rotations of the final positions, once)."""
         from crowd_ik.kernels import fabrik
 
         ra, ti = self.rig_arrays, self._ti
-        if self.rig.constraint_free and self._orient_zero:
-            self._solve_fabrik_free(max_iterations, tolerance)
-            return
         work = self.scratch("fabrik_pos", ti.math.vec3, (self.n, self.rig.n_joints))
         acc_w = self.scratch("fabrik_w", ti.f32, (self.n, self.rig.n_joints))
         fabrik.fabrik_solve(
@@ -360,8 +365,7 @@ class Crowd:
             ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
             self._targets, self._weights, self._orient, work, acc_w,
-            max_iterations, tolerance, int(not (self.rig.constraint_free and self._orient_zero)),
-            int(not self._orient_zero),
+            max_iterations, tolerance, recover_each_iteration, int(not self._orient_zero),
             self._error, self._iters, self._stalled,
         )
 
@@ -372,6 +376,9 @@ class Crowd:
 
         ra, ti, L = self.rig_arrays, self._ti, settings.lanes()
         J, E = self.rig.n_joints, self.rig.n_effectors
+        if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
+            self._solve_fabrik_general(max_iterations, tolerance, recover_each_iteration=0)
+            return
         LP = fabrik_lanes.pass_lanes(L)
         P = fabrik_lanes.packets(self.n, L)
         V = ti.types.vector(L, ti.f32)
@@ -434,24 +441,36 @@ class Crowd:
                 and params["balance_weight"] == 0 and params["joint_weights"] is None)
 
     def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, each pose in local arrays."""
-        from crowd_ik.kernels import dls_free
+        """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, characters as SIMD lanes."""
+        from crowd_ik.kernels import dls_lanes
         from crowd_ik.reference.dls import dls_settings
+        from crowd_ik.solvers import settings
 
         ra, ti, rig = self.rig_arrays, self._ti, self.rig
-        settings = dls_settings(rig, params["damping"])
+        dls_cfg = dls_settings(rig, params["damping"])
         on_path_np = np.zeros(rig.n_joints, np.int32)
         path = rig.path_to_root(rig.effectors[0].joint)
         on_path_np[path] = rig.arrays["kind"][path] > 0
         on_path = self.scratch("dls_on_path", ti.i32, (rig.n_joints,))
         on_path.from_numpy(on_path_np)
-        eff_lim = self.scratch("dls_eff_lim", ti.f32, settings["eff_lim"].shape)
-        eff_lim.from_numpy(settings["eff_lim"])
-        dls_free.dls_solve_free(
+        eff_lim = self.scratch("dls_eff_lim", ti.f32, dls_cfg["eff_lim"].shape)
+        eff_lim.from_numpy(dls_cfg["eff_lim"])
+        if settings.lanes() == 1:  # CUDA: one character per GPU thread, each pose in local arrays
+            from crowd_ik.kernels import dls_free
+
+            dls_free.dls_solve_free(
+                ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos,
+                self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
+                max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"], self._error, self._iters,
+                self._stalled, rig.n_joints,
+            )
+            return
+        L = dls_lanes.lanes_for(settings.lanes())
+        dls_lanes.free_solver(L, dls_lanes.capacity(rig.n_joints))(
             ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
-            max_iterations, tolerance, settings["damping"], settings["length"], self._error, self._iters,
-            self._stalled, rig.n_joints,
+            dls_lanes.streams(self.n, L), max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"],
+            self._error, self._iters, self._stalled,
         )
 
     def _solve_ccd(self, max_iterations: int, tolerance: float, params: dict) -> None:

@@ -109,11 +109,9 @@ def test_zero_weight_characters_do_not_move_and_others_do():
 
 
 def test_crowd_uses_the_free_kernel_exactly_where_it_applies(monkeypatch):
-    from crowd_ik.kernels import dls_free
-
     calls = []
-    kernel = dls_free.dls_solve_free
-    monkeypatch.setattr(dls_free, "dls_solve_free", lambda *a: (calls.append(1), kernel(*a)))
+    method = cik.Crowd._solve_dls_free
+    monkeypatch.setattr(cik.Crowd, "_solve_dls_free", lambda self, *a: (calls.append(1), method(self, *a)))
     chain = cik.Rig.chain(4, 0.3, dim=3)
     two_arms = cik.Rig(one_arm_tree().joints, (cik.Effector("tip", 6), cik.Effector("side_tip", 4)))
     cases = [(chain, {}, 1), (one_arm_tree(), {}, 1), (chain, dict(damping=0.02), 1),
@@ -125,6 +123,37 @@ def test_crowd_uses_the_free_kernel_exactly_where_it_applies(monkeypatch):
         crowd = cik.Crowd(rig, n=2, spacing=2.0)
         crowd.solve(crowd.effector_positions() + 0.05, method="dls", **kwargs)
         assert len(calls) == expected, (rig.n_joints, kwargs)
+
+
+@pytest.mark.parametrize("rig_name", ["chain16", "tree"])
+def test_lane_packed_kernel_solves_each_character_as_the_one_character_kernel(monkeypatch, rig_name):
+    """kernels/dls_lanes.py (streams of lanes that refill) against kernels/dls_free.py (one character per thread,
+    what lanes = 1 selects): the same statuses, the same iteration counts for nearly all, the same poses up to
+    float32 rounding, which a redundant chain's null space can grow to a millimetre for a few characters."""
+    from crowd_ik.kernels import dls_lanes
+    from crowd_ik.solvers import settings
+
+    rig = cik.Rig.chain(**CHAIN16) if rig_name == "chain16" else one_arm_tree()
+    n = 2 * dls_lanes.lanes_for(settings.lanes()) + 7  # a partial last packet
+    rng = np.random.default_rng(13)
+    roots = rng.uniform(-20, 20, (n, 3)).astype(np.float32)
+    yaw = rng.uniform(-3, 3, n).astype(np.float32)
+    reach = float(rig.reach[0])
+    targets = roots[:, None] + ball_targets(n, 0.95 * reach, seed=14)[:, None]
+    targets[:3] = roots[:3, None] + ball_targets(3, 2.0 * reach, seed=15)[:, None] * 1.5  # some out of reach
+    start = (rng.normal(size=(n, rig.n_dof)) * 0.3).astype(np.float32)
+    a, pa, qa = solve(rig, targets, start, roots, yaw, general=False, max_iterations=60, tolerance=1e-3)
+    with monkeypatch.context() as m:
+        m.setattr(settings, "lanes", lambda: 1)
+        b, pb, qb = solve(rig, targets, start, roots, yaw, general=False, max_iterations=60, tolerance=1e-3)
+    np.testing.assert_array_equal(a.status, b.status)
+    same = a.iterations == b.iterations
+    assert np.mean(same) >= 0.95
+    close = np.abs(pa - pb).max(axis=(1, 2)) <= 1e-4
+    assert np.mean(close[same]) >= 0.9
+    np.testing.assert_allclose(pa[same], pb[same], atol=5e-3)
+    np.testing.assert_allclose(a.error[same], b.error[same], atol=1e-4)
+    np.testing.assert_allclose(np.linalg.norm(qa, axis=-1), 1.0, atol=1e-6)
 
 
 @ti.kernel
