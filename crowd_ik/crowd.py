@@ -389,7 +389,7 @@ class Crowd:
             self._stalled,
         )
         fabrik_lanes.free_recover(L, fabrik_lanes.capacity(J))(
-            ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+            ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets,
             self._weights, *proposals, min(P, fabrik_lanes.MAX_STREAMS), self._error, self._iters,
         )

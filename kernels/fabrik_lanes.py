@@ -234,7 +234,7 @@ def free_recover(L: int, max_joints: int):
     fx, fy, fz, fqx, fqy, fqz, fqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
 
     @ti.func
-    def swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, offset: ti.template(),
+    def swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, bone: ti.template(),
                     child_list: ti.template(), gx: ti.template(), gy: ti.template(), gz: ti.template(),
                     ga: ti.template()):
         """fabrik.swing_round per lane: q turned by the weighted mean of the minimal swings aiming each active
@@ -244,26 +244,26 @@ def free_recover(L: int, max_joints: int):
             c = child_list[cc]
             wc = ga[p, c]
             on = wc > 0.0
-            o = offset[c]
+            o = bone[c]  # the child's unit direction: qrot of it needs no normalisation
             ux, uy, uz = lm.qrot(qx, qy, qz, qw, V(o.x), V(o.y), V(o.z))
-            ux, uy, uz = lm.normalized(ux, uy, uz)
             vx, vy, vz = lm.qrot(ix, iy, iz, iw, gx[p, c] - jx, gy[p, c] - jy, gz[p, c] - jz)
-            vx, vy, vz = lm.safe_normalize(vx, vy, vz, ux, uy, uz)
-            sx, sy, sz, sw = lm.swing(ux, uy, uz, vx, vy, vz)
+            vx, vy, vz = lm.fast_normalize(vx, vy, vz, ux, uy, uz)
+            sx, sy, sz, sw = lm.swing_fast(ux, uy, uz, vx, vy, vz)
             flip = ti.select(sw < 0.0, -1.0, 1.0)
             sx, sy, sz, sw = flip * sx, flip * sy, flip * sz, flip * sw
             ax = ti.select(on, ax + wc * sx, ax)
             ay = ti.select(on, ay + wc * sy, ay)
             az = ti.select(on, az + wc * sz, az)
             aw_ = ti.select(on, aw_ + wc * sw, aw_)
-        nx, ny, nz, nw = lm.qnormalize(ax, ay, az, aw_)
+        nx, ny, nz, nw = lm.qnormalize_fast(ax, ay, az, aw_)
         mx, my, mz, mw = lm.qmul(nx, ny, nz, nw, qx, qy, qz, qw)
-        return lm.qnormalize(mx, my, mz, mw)
+        return lm.qnormalize_fast(mx, my, mz, mw)
 
     @ti.kernel
     def recover(
         parent: ndarray(dtype=ti.i32, ndim=1),
         offset: ndarray(dtype=vec3, ndim=1),
+        bone: ndarray(dtype=vec4, ndim=1),
         kind: ndarray(dtype=ti.i32, ndim=1),
         child_start: ndarray(dtype=ti.i32, ndim=1),
         child_list: ndarray(dtype=ti.i32, ndim=1),
@@ -325,13 +325,13 @@ def free_recover(L: int, max_joints: int):
                             if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
                                 ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
                                 sx, sy, sz, sw = swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
-                                                             offset, child_list, gx, gy, gz, ga)
+                                                             bone, child_list, gx, gy, gz, ga)
                                 if ti.static(SWING_ROUNDS > 1):
                                     if n_active.max() > 1.0:  # a sub-base: refine (fabrik.SWING_ROUNDS rounds)
                                         tx, ty, tz, tw = sx, sy, sz, sw
                                         for _ in range(SWING_ROUNDS - 1):
                                             tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw,
-                                                                         jx, jy, jz, offset, child_list, gx, gy, gz, ga)
+                                                                         jx, jy, jz, bone, child_list, gx, gy, gz, ga)
                                         several = n_active > 1.0
                                         sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
                                         sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
