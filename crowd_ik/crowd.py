@@ -371,7 +371,7 @@ class Crowd:
 
     def _solve_fabrik_free(self, max_iterations: int, tolerance: float) -> None:
         """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
-        from crowd_ik.kernels import fabrik_lanes
+        from crowd_ik.kernels import fabrik_lanes, lane_plan
         from crowd_ik.solvers import settings
 
         ra, ti, L = self.rig_arrays, self._ti, settings.lanes()
@@ -379,19 +379,19 @@ class Crowd:
         if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
             self._solve_fabrik_general(max_iterations, tolerance, recover_each_iteration=0)
             return
-        LP = fabrik_lanes.pass_lanes(L)
-        P = fabrik_lanes.packets(self.n, L)
+        LP = lane_plan.pass_lanes(L)
+        P = lane_plan.packets(self.n, L)
         V = ti.types.vector(L, ti.f32)
         proposals = [self.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
-        fabrik_lanes.free_solver(LP, L, fabrik_lanes.capacity(J), fabrik_lanes.capacity(E))(
+        fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
             ra["parent"], ra["bone"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
-            fabrik_lanes.streams(self.n, LP), *proposals, max_iterations, tolerance, self._error, self._iters,
+            lane_plan.streams(self.n, LP), *proposals, max_iterations, tolerance, self._error, self._iters,
             self._stalled,
         )
-        fabrik_lanes.free_recover(L, fabrik_lanes.capacity(J))(
+        fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
             ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
             self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets,
-            self._weights, *proposals, min(P, fabrik_lanes.MAX_STREAMS), self._error, self._iters,
+            self._weights, *proposals, min(P, lane_plan.MAX_STREAMS), self._error, self._iters,
         )
 
     def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:
@@ -442,7 +442,7 @@ class Crowd:
 
     def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
         """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, characters as SIMD lanes."""
-        from crowd_ik.kernels import dls_lanes
+        from crowd_ik.kernels import dls_lanes, lane_plan
         from crowd_ik.reference.dls import dls_settings
         from crowd_ik.solvers import settings
 
@@ -465,11 +465,11 @@ class Crowd:
                 self._stalled, rig.n_joints,
             )
             return
-        L = dls_lanes.lanes_for(settings.lanes())
-        dls_lanes.free_solver(L, dls_lanes.capacity(rig.n_joints))(
+        L = lane_plan.pass_lanes(settings.lanes())
+        dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
             ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
-            dls_lanes.streams(self.n, L), max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"],
+            lane_plan.streams(self.n, L), max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"],
             self._error, self._iters, self._stalled,
         )
 

@@ -17,6 +17,7 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.kernels.dls_free import objective
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat
 from crowd_ik.solvers.settings import (
@@ -27,26 +28,6 @@ from crowd_ik.solvers.settings import (
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
-MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
-CHARS_PER_LANE = 32  # characters a stream's lane works through on average
-
-
-def lanes_for(lanes: int) -> int:
-    """Lanes per stream for the machine's vector width: two vectors per value, at most 32 (chain16, 16,384
-    characters, AVX-512: 16 lanes 31.9 ms, 32 lanes 28.0 ms; 8 lanes 41.2 ms)."""
-    return min(2 * lanes, 32)
-
-
-def capacity(n: int) -> int:
-    """The scratch fields' joint capacity for n joints: the next power of two (a kernel per size class)."""
-    return 1 << max(2, (n - 1).bit_length())
-
-
-def streams(n: int, lanes: int) -> int:
-    """Streams for n characters: about CHARS_PER_LANE per lane, at least min(packets, 8), at most MAX_STREAMS."""
-    packets = (n + lanes - 1) // lanes
-    return max(1, min(packets, max(8, (n + lanes * CHARS_PER_LANE - 1) // (lanes * CHARS_PER_LANE)), MAX_STREAMS))
-
 
 @functools.cache
 def free_solver(L: int, max_joints: int):

@@ -8,7 +8,7 @@ Two kernels, built per lane width and scratch size by cached factories (importin
 no Taichi state; crowd_ik/solvers/settings.py chooses the machine's width L):
 
 - :func:`free_solver` moves the joints. It runs S streams, each a contiguous range of characters worked
-  through by :func:`pass_lanes` (2L) lanes: when a lane's character converges, stalls or runs out of
+  through by ``lane_plan.pass_lanes`` (2L) lanes: when a lane's character converges, stalls or runs out of
   iterations, its result is written out and the lane takes the stream's next character. So a stream
   costs the sum of its characters' iterations over the lane count, not the lane count times the slowest
   one's (chain16: a 16-lane packet's slowest character takes 2.8 times the mean iterations). A stream
@@ -22,7 +22,7 @@ capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after ev
 and that integer work was a third of the passes' instructions (chain16, 16,384 characters: 13.9 -> 8.8
 ms). Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's passes and
 recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same order, except that a
-normalisation multiplies by one reciprocal (lane_math.fast_normalize), so statuses and iteration counts
+normalisation multiplies by one reciprocal (kernels/lane_math.py), so statuses and iteration counts
 match it and results do not depend on a character's lane-mates.
 """
 
@@ -31,38 +31,12 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
-MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
-CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
-
-
-def packets(n: int, lanes: int) -> int:
-    """Packets of `lanes` consecutive characters that hold n characters (the last one padded)."""
-    return (n + lanes - 1) // lanes
-
-
-def pass_lanes(lanes: int) -> int:
-    """Lanes per stream of free_solver for the machine's width: two vectors per value (at most 32 lanes). Each
-    joint's update is a dependent sqrt-then-divide chain; two independent halves hide its latency (chain16,
-    16,384 characters, AVX-512: 8.6 -> 7.1 ms). The recovery keeps one vector per value: its larger working
-    set spills at twice the width (5.2 -> 9.2 ms)."""
-    return min(2 * lanes, 32)
-
-
-def capacity(n: int) -> int:
-    """The scratch fields' size for n joints or effectors: the next power of two (a kernel per size class)."""
-    return 1 << max(2, (n - 1).bit_length())
-
-
-def streams(n: int, lanes: int) -> int:
-    """Streams free_solver runs for n characters: about CHARS_PER_LANE characters per lane, and at least
-    as many streams as packets up to 8 (small crowds still use every thread)."""
-    return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE)), MAX_STREAMS))
-
 
 @functools.cache
 def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
@@ -189,7 +163,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                         inv = 1.0 / ws  # (exact where the weights are 1, as on chain16)
                         cx, cy, cz = wx[s, j] * inv, wy[s, j] * inv, wz[s, j] * inv  # the centroid of what reached j
                         wx[s, j], wy[s, j], wz[s, j] = cx, cy, cz
-                        ux, uy, uz = lm.fast_normalize(px[s, q] - cx, py[s, q] - cy, pz[s, q] - cz, fb.x, fb.y, fb.z)
+                        ux, uy, uz = lm.safe_normalize(px[s, q] - cx, py[s, q] - cy, pz[s, q] - cz, fb.x, fb.y, fb.z)
                         wx[s, q] = ti.select(on, wx[s, q] + w * (cx + length * ux), wx[s, q])
                         wy[s, q] = ti.select(on, wy[s, q] + w * (cy + length * uy), wy[s, q])
                         wz[s, q] = ti.select(on, wz[s, q] + w * (cz + length * uz), wz[s, q])
@@ -203,7 +177,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                         fb = b.xyz
                         on = aw[s, j] > 0.0
                         bx, by, bz = wx[s, q], wy[s, q], wz[s, q]
-                        ux, uy, uz = lm.fast_normalize(wx[s, j] - bx, wy[s, j] - by, wz[s, j] - bz, fb.x, fb.y, fb.z)
+                        ux, uy, uz = lm.safe_normalize(wx[s, j] - bx, wy[s, j] - by, wz[s, j] - bz, fb.x, fb.y, fb.z)
                         nx = ti.select(on, bx + length * ux, wx[s, j])
                         ny = ti.select(on, by + length * uy, wy[s, j])
                         nz = ti.select(on, bz + length * uz, wz[s, j])
@@ -247,17 +221,17 @@ def free_recover(L: int, max_joints: int):
             o = bone[c]  # the child's unit direction: qrot of it needs no normalisation
             ux, uy, uz = lm.qrot(qx, qy, qz, qw, V(o.x), V(o.y), V(o.z))
             vx, vy, vz = lm.qrot(ix, iy, iz, iw, gx[p, c] - jx, gy[p, c] - jy, gz[p, c] - jz)
-            vx, vy, vz = lm.fast_normalize(vx, vy, vz, ux, uy, uz)
-            sx, sy, sz, sw = lm.swing_fast(ux, uy, uz, vx, vy, vz)
+            vx, vy, vz = lm.safe_normalize(vx, vy, vz, ux, uy, uz)
+            sx, sy, sz, sw = lm.swing(ux, uy, uz, vx, vy, vz)
             flip = ti.select(sw < 0.0, -1.0, 1.0)
             sx, sy, sz, sw = flip * sx, flip * sy, flip * sz, flip * sw
             ax = ti.select(on, ax + wc * sx, ax)
             ay = ti.select(on, ay + wc * sy, ay)
             az = ti.select(on, az + wc * sz, az)
             aw_ = ti.select(on, aw_ + wc * sw, aw_)
-        nx, ny, nz, nw = lm.qnormalize_fast(ax, ay, az, aw_)
+        nx, ny, nz, nw = lm.qnormalize(ax, ay, az, aw_)
         mx, my, mz, mw = lm.qmul(nx, ny, nz, nw, qx, qy, qz, qw)
-        return lm.qnormalize_fast(mx, my, mz, mw)
+        return lm.qnormalize(mx, my, mz, mw)
 
     @ti.kernel
     def recover(

@@ -3,8 +3,9 @@
 A 3-vector is (x, y, z), a quaternion (x, y, z, w), every component a ``ti.types.vector(L, ti.f32)``
 holding one character per lane; branches of the one-character helpers in kernels/quat.py become
 per-lane selects. Each helper performs the same floating-point operations in the same order as its
-twin in kernels/quat.py (and Taichi's own ``cross``, ``dot``, ``norm`` and ``normalized``), so a lane
-gets what the one-character kernel gets. The functions are generic in L: Taichi instantiates them for
+twin in kernels/quat.py (and Taichi's own ``cross``, ``dot``, ``norm`` and ``normalized``), except that
+the normalisations multiply by one reciprocal instead of dividing each component (within an ulp; the
+lane kernels are division-bound), so a lane gets what the one-character kernel gets up to rounding. The functions are generic in L: Taichi instantiates them for
 the lane vectors they are called with.
 """
 
@@ -35,17 +36,7 @@ def normalized(x, y, z):
 
 @ti.func
 def safe_normalize(x, y, z, fx, fy, fz):
-    """Per lane: v / |v|, or the fallback where |v| <= 1e-9 (quat.safe_normalize)."""
-    n = norm3(x, y, z)
-    big = n > 1e-9
-    ns = ti.select(big, n, 1.0)
-    return ti.select(big, x / ns, fx), ti.select(big, y / ns, fy), ti.select(big, z / ns, fz)
-
-
-@ti.func
-def fast_normalize(x, y, z, fx, fy, fz):
-    """safe_normalize with one division: v times the reciprocal of |v| (within an ulp per component of
-    safe_normalize's quotients; the FABRIK passes are division-bound, and this removes two thirds of them)."""
+    """Per lane: v / |v|, or the fallback where |v| <= 1e-9 (quat.safe_normalize), as v times one reciprocal."""
     n = norm3(x, y, z)
     big = n > 1e-9
     inv = 1.0 / ti.select(big, n, 1.0)
@@ -71,17 +62,7 @@ def qrot(qx, qy, qz, qw, vx, vy, vz):
 
 @ti.func
 def qnormalize(x, y, z, w):
-    """q / |q|, or the identity where |q| <= 1e-12 (quat.qnormalize)."""
-    n = ti.sqrt(x * x + y * y + z * z + w * w + 0.0)
-    big = n > 1e-12
-    ns = ti.select(big, n, 1.0)
-    return (ti.select(big, x / ns, 0.0), ti.select(big, y / ns, 0.0), ti.select(big, z / ns, 0.0),
-            ti.select(big, w / ns, 1.0))
-
-
-@ti.func
-def qnormalize_fast(x, y, z, w):
-    """qnormalize with one division (times the reciprocal of |q|)."""
+    """q / |q|, or the identity where |q| <= 1e-12 (quat.qnormalize), as q times one reciprocal."""
     n = ti.sqrt(x * x + y * y + z * z + w * w + 0.0)
     big = n > 1e-12
     inv = 1.0 / ti.select(big, n, 1.0)
@@ -90,26 +71,10 @@ def qnormalize_fast(x, y, z, w):
 
 
 @ti.func
-def swing_fast(ux, uy, uz, vx, vy, vz):
-    """swing with one division in its normalisation (a branch on the antiparallel lanes instead of selects
-    made the recovery twice as slow: it splits the vector code)."""
-    d = dot3(ux, uy, uz, vx, vy, vz)
-    ax, ay, az = cross(ux, uy, uz, 1.0, 0.0, 0.0)
-    bx, by, bz = cross(ux, uy, uz, 0.0, 1.0, 0.0)
-    along_x = ax * ax + ay * ay + az * az < 1e-8
-    ax, ay, az = ti.select(along_x, bx, ax), ti.select(along_x, by, ay), ti.select(along_x, bz, az)
-    ax, ay, az = normalized(ax, ay, az)
-    cx, cy, cz = cross(ux, uy, uz, vx, vy, vz)
-    qx, qy, qz, qw = qnormalize_fast(cx, cy, cz, 1.0 + d)
-    anti = d < -0.999999
-    return ti.select(anti, ax, qx), ti.select(anti, ay, qy), ti.select(anti, az, qz), ti.select(anti, 0.0, qw)
-
-
-@ti.func
 def swing(ux, uy, uz, vx, vy, vz):
-    """The minimal rotation taking unit u to unit v (quat.swing), the antiparallel case per lane."""
+    """The minimal rotation taking unit u to unit v (quat.swing), the antiparallel case selected per lane
+    (computed for every lane: a branch on it split the vector code and made FABRIK's recovery slower)."""
     d = dot3(ux, uy, uz, vx, vy, vz)
-    # antiparallel: a half turn about an axis perpendicular to u (x, else y where u is along x)
     ax, ay, az = cross(ux, uy, uz, 1.0, 0.0, 0.0)
     bx, by, bz = cross(ux, uy, uz, 0.0, 1.0, 0.0)
     along_x = ax * ax + ay * ay + az * az < 1e-8
@@ -119,3 +84,5 @@ def swing(ux, uy, uz, vx, vy, vz):
     qx, qy, qz, qw = qnormalize(cx, cy, cz, 1.0 + d)
     anti = d < -0.999999
     return ti.select(anti, ax, qx), ti.select(anti, ay, qy), ti.select(anti, az, qz), ti.select(anti, 0.0, qw)
+
+

@@ -130,11 +130,11 @@ def test_lane_packed_kernel_solves_each_character_as_the_one_character_kernel(mo
     """kernels/dls_lanes.py (streams of lanes that refill) against kernels/dls_free.py (one character per thread,
     what lanes = 1 selects): the same statuses, the same iteration counts for nearly all, the same poses up to
     float32 rounding, which a redundant chain's null space can grow to a millimetre for a few characters."""
-    from crowd_ik.kernels import dls_lanes
+    from crowd_ik.kernels import lane_plan
     from crowd_ik.solvers import settings
 
     rig = cik.Rig.chain(**CHAIN16) if rig_name == "chain16" else one_arm_tree()
-    n = 2 * dls_lanes.lanes_for(settings.lanes()) + 7  # a partial last packet
+    n = 2 * lane_plan.pass_lanes(settings.lanes()) + 7  # a partial last packet
     rng = np.random.default_rng(13)
     roots = rng.uniform(-20, 20, (n, 3)).astype(np.float32)
     yaw = rng.uniform(-3, 3, n).astype(np.float32)

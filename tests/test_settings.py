@@ -35,10 +35,10 @@ def test_bad_lane_widths_are_refused_naming_the_source(monkeypatch, value):
 def test_init_records_the_lane_width():
     import crowd_ik
 
-    crowd_ik.init(arch="cpu")
+    crowd_ik.init()  # already running (the session fixture): returns its arch
     assert settings.lanes() == crowd_ik.runtime.current()["lanes"] in settings.LANE_CHOICES
     with pytest.raises(RuntimeError, match="lanes"):
-        crowd_ik.init(arch="cpu", lanes=32 if settings.lanes() != 32 else 16)
+        crowd_ik.init(lanes=32 if settings.lanes() != 32 else 16)
 
 
 def test_twins_and_kernels_share_the_constants():
