@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crowd_ik import runtime
-from crowd_ik.rig import Rig
+from crowd_ik.rig import MAX_EXTENT, Rig
 
 METHODS = ("fabrik", "dls", "ccd")
 # Bytes of Taichi state per joint and per DOF of one character (positions, rotations, scratch).
@@ -49,11 +49,16 @@ class SolveReport:
                     max_error=float(self.error.max()), mean_iterations=float(self.iterations.mean()), **counts)
 
 
-def _as_array(value, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
-    """Broadcast ``value`` to ``shape`` as a C-contiguous array; refuse NaN/inf and bad shapes."""
+MAX_ITERATIONS = 10_000  # the most iterations one solve may ask for (the kernels count in int32 and float32)
+
+
+def _as_array(value, name: str, shape: tuple, dtype=np.float32, limit: float | None = None) -> np.ndarray:
+    """Broadcast ``value`` to ``shape`` as a C-contiguous array; refuse complex, NaN/inf, |x| > limit and bad
+    shapes."""
     arr = np.asarray(value)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
-        raise ValueError(f"{name}: expected numbers (got dtype {arr.dtype})")
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
+                                   or arr.dtype == bool):
+        raise ValueError(f"{name}: expected real numbers (got dtype {arr.dtype})")
     try:
         arr = np.broadcast_to(arr, shape)
     except ValueError:
@@ -62,12 +67,16 @@ def _as_array(value, name: str, shape: tuple, dtype=np.float32) -> np.ndarray:
     if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
         bad = arr[~np.isfinite(arr)].flat[0]
         raise ValueError(f"{name}: must be finite (got {bad})")
+    if limit is not None and arr.size and float(np.max(np.abs(arr))) > limit:
+        raise ValueError(f"{name}: must be within +-{limit:g} (got {float(arr.flat[np.argmax(np.abs(arr))])})")
     return arr
 
 
-def _positive_int(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name}: expected a positive integer (got {value!r})")
+def _positive_int(value, name: str, most: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 \
+            or (most is not None and value > most):
+        bound = "a positive integer" if most is None else f"an integer in [1, {most:,}]"
+        raise ValueError(f"{name}: expected {bound} (got {value!r})")
     return int(value)
 
 
@@ -99,8 +108,10 @@ class Crowd:
         if not isinstance(rig, Rig):
             raise ValueError(f"rig: expected a crowd_ik.Rig (got {type(rig).__name__})")
         self.n = _positive_int(n, "n")
-        if not (isinstance(spacing, (int, float)) and math.isfinite(spacing) and spacing >= 0):
-            raise ValueError(f"spacing: expected a finite number >= 0 (got {spacing!r})")
+        if isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(spacing) and 0 <= spacing * math.sqrt(max(self.n, 1)) <= MAX_EXTENT):
+            raise ValueError(f"spacing: expected a number >= 0 that keeps the grid within {MAX_EXTENT:g} m "
+                             f"(got {spacing!r})")
         need = self.bytes_per_character(rig) * self.n
         if need > 16 * 2**30:
             raise ValueError(f"n: {self.n} characters of {rig.name} need about {need / 2**30:.1f} GiB (limit 16 GiB)")
@@ -165,7 +176,7 @@ class Crowd:
     # ---------------------------------------------------------------- state in
     def set_roots(self, positions, yaw=None) -> None:
         """Place the characters: positions (N, dim) world metres; yaw (N,) radians about +y (3D only)."""
-        pos = _as_array(positions, "positions", (self.n, self.dim))
+        pos = _as_array(positions, "positions", (self.n, self.dim), limit=MAX_EXTENT)
         full = np.zeros((self.n, 3), np.float32)
         full[:, : self.dim] = pos
         if yaw is not None and self.dim == 2:
@@ -284,14 +295,14 @@ class Crowd:
         """
         if method not in METHODS:
             raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
-        max_iterations = _positive_int(max_iterations, "max_iterations")
-        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) \
+        max_iterations = _positive_int(max_iterations, "max_iterations", MAX_ITERATIONS)
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating, np.integer)) \
                 or not (math.isfinite(tolerance) and tolerance > 0):
             raise ValueError(f"tolerance: expected a positive number (got {tolerance!r})")
         N, E, dim = self.n, self.rig.n_effectors, self.dim
         if np.ndim(targets) == 2 and np.shape(targets) == (E, dim) and N == 1:
             targets = np.asarray(targets)[None]
-        tgt = _as_array(targets, "targets", (N, E, dim))
+        tgt = _as_array(targets, "targets", (N, E, dim), limit=MAX_EXTENT)
         if np.shape(targets) != (N, E, dim):
             raise ValueError(f"targets: expected shape {(N, E, dim)} (got {np.shape(targets)})")
         w = np.ones((N, E), np.float32) if weights is None else _as_array(weights, "weights", (N, E))
@@ -397,8 +408,8 @@ class Crowd:
     def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:
         """Damped least squares with LM damping and a joint-limit active set (kernels/dls.py), one launch."""
         from crowd_ik.kernels import dls
-        from crowd_ik.reference.dls import dls_settings
-        from crowd_ik.reference.quat import limit_pseudo_angles
+        from crowd_ik.solvers.dls_setup import dls_settings
+        from crowd_ik.solvers.limits import limit_pseudo_angles
 
         ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
         if self._dls_free_applies(params):
@@ -443,7 +454,7 @@ class Crowd:
     def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
         """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, characters as SIMD lanes."""
         from crowd_ik.kernels import dls_lanes, lane_plan
-        from crowd_ik.reference.dls import dls_settings
+        from crowd_ik.solvers.dls_setup import dls_settings
         from crowd_ik.solvers import settings
 
         ra, ti, rig = self.rig_arrays, self._ti, self.rig

@@ -22,7 +22,7 @@ from functools import cached_property
 
 import numpy as np
 
-from crowd_ik.reference.quat import limit_pseudo_angles
+from crowd_ik.solvers.limits import limit_pseudo_angles
 
 # Joint kinds and their DOF counts; the DOF count doubles as the kind code the kernels read.
 KINDS = {"fixed": 0, "hinge": 1, "universal": 2, "ball": 3}
@@ -57,11 +57,30 @@ class Effector:
     axis: tuple[float, float, float] | None = None
 
 
-def _vec3(value, what: str) -> tuple[float, float, float]:
-    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+MAX_EXTENT = 1e4  # metres: offsets, bone lengths, roots and targets beyond this are refused (float32 keeps
+# sub-millimetre steps up to there; 1e39 is infinite in float32 and made a NaN pose look converged)
+
+
+def _vec3(value, what: str, limit: float | None = None) -> tuple[float, float, float]:
+    try:
+        raw = np.asarray(value)
+        if raw.dtype == object or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+            raise TypeError
+        arr = raw.astype(np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected 3 real numbers (got {value!r})") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ValueError(f"{what}: expected 3 finite numbers (got {value!r})")
+    if limit is not None and np.any(np.abs(arr) > limit):
+        raise ValueError(f"{what}: each coordinate must be within +-{limit:g} m (got {value!r})")
     return tuple(float(v) for v in arr)
+
+
+def _index(value, what: str) -> int:
+    """An integer index (Python or numpy integer; not a bool, a float or a string)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{what}: expected an integer index (got {value!r})")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -85,13 +104,14 @@ class Rig:
             where = f"joint {j} ({joint.name!r})"
             if joint.kind not in KINDS:
                 raise ValueError(f"{where}: unknown joint kind {joint.kind!r} (expected one of {', '.join(KINDS)})")
-            if j == 0 and joint.parent != -1:
+            parent = _index(joint.parent, f"{where}: parent")
+            if j == 0 and parent != -1:
                 raise ValueError(f"{where}: the first joint is the root and needs parent -1 (got {joint.parent})")
-            if j > 0 and not (0 <= joint.parent < j):
+            if j > 0 and not (0 <= parent < j):
                 raise ValueError(
                     f"{where}: parent must come before its child (parent index in [0, {j - 1}]; got {joint.parent})"
                 )
-            offset = _vec3(joint.offset, f"{where}: offset")
+            offset = _vec3(joint.offset, f"{where}: offset", MAX_EXTENT)
             if j > 0 and math.hypot(*offset) <= 0.0:
                 raise ValueError(f"{where}: bone length must be positive (got offset {offset})")
             dof = KINDS[joint.kind]
@@ -119,15 +139,25 @@ class Rig:
                 raise ValueError(f"{where}: cone must be in (0, pi] on a ball joint (got {joint.cone!r} on {joint.kind})")
             if not (math.isfinite(joint.radius) and joint.radius > 0):
                 raise ValueError(f"{where}: radius must be positive (got {joint.radius!r})")
-            fixed.append(Joint(joint.name, joint.parent, offset, joint.kind, axes, lo, hi, joint.cone, joint.radius))
+            fixed.append(Joint(joint.name, parent, offset, joint.kind, axes, lo, hi, joint.cone, joint.radius))
         object.__setattr__(self, "joints", tuple(fixed))
         effectors = tuple(self.effectors) or (Effector("tip", len(joints) - 1),)
+        checked = []
         for e in effectors:
-            if not (0 <= e.joint < len(joints)):
+            joint = _index(e.joint, f"effector {e.name!r}: joint")
+            if not (0 <= joint < len(joints)):
                 raise ValueError(f"effector {e.name!r}: joint index out of range (got {e.joint})")
-            if not (math.isfinite(e.weight) and e.weight >= 0):
-                raise ValueError(f"effector {e.name!r}: weight must be >= 0 (got {e.weight!r})")
-        object.__setattr__(self, "effectors", effectors)
+            if isinstance(e.weight, bool) or not isinstance(e.weight, (int, float, np.integer, np.floating)) \
+                    or not (math.isfinite(e.weight) and e.weight >= 0):
+                raise ValueError(f"effector {e.name!r}: weight must be a number >= 0 (got {e.weight!r})")
+            axis = e.axis
+            if axis is not None:
+                axis = _vec3(axis, f"effector {e.name!r}: axis")
+                if math.hypot(*axis) < 1e-9:
+                    raise ValueError(f"effector {e.name!r}: axis must be non-zero (got {e.axis!r})")
+                axis = _unit(axis, f"effector {e.name!r}")
+            checked.append(Effector(e.name, joint, float(e.weight), axis))
+        object.__setattr__(self, "effectors", tuple(checked))
 
     # ---------------------------------------------------------------- constructors
     @classmethod
@@ -140,8 +170,10 @@ class Rig:
         """
         if isinstance(n_bones, bool) or not isinstance(n_bones, (int, np.integer)) or n_bones < 1:
             raise ValueError(f"n_bones: expected a positive integer (got {n_bones!r})")
-        if not (isinstance(bone_length, (int, float)) and math.isfinite(bone_length) and bone_length > 0):
-            raise ValueError(f"bone_length: expected a positive number (got {bone_length!r})")
+        if isinstance(bone_length, bool) or not isinstance(bone_length, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(bone_length) and 0 < bone_length <= MAX_EXTENT):
+            raise ValueError(f"bone_length: expected a positive number up to {MAX_EXTENT:g} m (got {bone_length!r})")
+        bone_length = float(bone_length)
         if dim not in (2, 3):
             raise ValueError(f"dim: expected 2 or 3 (got {dim!r})")
         kind, dof = ("hinge", 1) if dim == 2 else ("ball", 3)
@@ -282,7 +314,7 @@ class Rig:
 
         parent (J,), offset (J,3), kind (J,) 0 fixed/1 hinge/2 universal/3 ball, axes (J,2,3),
         dof_start (J,), lo/hi (DOF+1,) (one padding entry so a DOF-less rig still has an array), lim_p (DOF+1, 2)
-        their pseudo-angles (reference.quat.limit_pseudo_angles),
+        their pseudo-angles (solvers.limits.limit_pseudo_angles),
         cone (J,) (0 = none), eff_joint (E,), eff_axis (E,3), eff_has_axis (E,), radius (J,), bone (J, 4): the
         unit direction of each joint's offset and its length (the root's: 0), which FABRIK's passes use.
         """

@@ -16,6 +16,11 @@ _STATE: dict = {}
 ARCHES = ("auto", "cpu", "cuda")
 
 
+class BackendUnavailable(RuntimeError, ValueError):
+    """The backend asked for cannot start on this machine. A RuntimeError for library callers, and bad input
+    (exit code 2) for the command line, which maps ValueError to 2."""
+
+
 def _cuda_available(ti) -> bool:
     """True when Taichi's CUDA backend can start on this machine (no display probe)."""
     try:
@@ -76,7 +81,7 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
     import taichi as ti
 
     if arch == "cuda" and not _cuda_available(ti):
-        raise RuntimeError("arch 'cuda' requested but no CUDA GPU is available to Taichi on this machine")
+        raise BackendUnavailable("arch: 'cuda' requested but no CUDA GPU is available to Taichi on this machine")
     use_cuda = arch == "cuda" or (arch == "auto" and _cuda_available(ti))
     kwargs = dict(
         arch=ti.cuda if use_cuda else ti.cpu,
@@ -116,4 +121,4 @@ def float_dtype():
     return np.float64 if _STATE.get("fp", 32) == 64 else np.float32
 
 
-__all__ = ["init", "ensure_init", "current", "float_dtype", "ARCHES"]
+__all__ = ["init", "ensure_init", "current", "float_dtype", "ARCHES", "BackendUnavailable"]

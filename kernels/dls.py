@@ -603,13 +603,13 @@ def dls_solve(
 
     Rig arrays as in Rig.arrays; eff_lim (E, 2): per effector the reach and d_max (metres);
     joint_w (D+1,) per-DOF weights (0 freezes a DOF); com_w, support_w (J,) the balance weights of
-    crowd_ik.reference.dls.balance_weights. targets (N, E, 3) world metres; weights (N, E);
+    crowd_ik.solvers.dls_setup.balance_weights. targets (N, E, 3) world metres; weights (N, E);
     orient (N, E, 3) unit directions or zero. Scratch: rel_pos (N, J), qwork (N, 4, J),
     work (N, 9, D+1), jac (N, R, D+1), rows (N, 2, R), sys (N, R, R), R = 3E + 2 per effector with
     an axis (+ 2 with bal_w > 0). damping and length in metres (damping > 0); rest_w, vel_w in
     m^2/rad^2; bal_w (dimensionless) weighs the squared balance error in m^2. Outputs:
     error (N,) final max effector distance, iterations (N,) accepted steps, stalled (N,) 1 if LM
-    could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.reference.dls.dls_settings.
+    could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.solvers.dls_setup.dls_settings.
     """
     for i in range(root_pos.shape[0]):
         read_angles(i, parent, kind, jmode, axes, dof_start, local_rot, work)

@@ -265,7 +265,7 @@ def free_recover(L: int, max_joints: int):
             for p in range(s * chunk, ti.min(s * chunk + chunk, P)):
                 m = V(0.0)  # lanes whose character iterated
                 rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)
-                for l in ti.static(range(L)):
+                for l in range(L):
                     i = ti.min(p * L + l, N - 1)
                     if p * L + l < N and iterations[i] > 0:
                         m[l] = 1.0
@@ -274,7 +274,7 @@ def free_recover(L: int, max_joints: int):
                 if m.max() > 0.0:
                     for j in range(J):  # the local rotations first (fq rows hold them until the sweep reaches j)
                         qx, qy, qz, qw = V(0.0), V(0.0), V(0.0), V(0.0)
-                        for l in ti.static(range(L)):
+                        for l in range(L):
                             qv = local_rot[ti.min(p * L + l, N - 1), j]
                             qx[l], qy[l], qz[l], qw[l] = qv.x, qv.y, qv.z, qv.w
                         fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = qx, qy, qz, qw
@@ -311,17 +311,17 @@ def free_recover(L: int, max_joints: int):
                                         sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
                                 qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
                                 qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
-                                for l in ti.static(range(L)):
+                                for l in range(L):
                                     if turn[l]:
                                         local_rot[p * L + l, j] = vec4(qx[l], qy[l], qz[l], qw[l])
                         wqx, wqy, wqz, wqw = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
                         fx[s, j], fy[s, j], fz[s, j] = jx, jy, jz
                         fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = wqx, wqy, wqz, wqw
-                        for l in ti.static(range(L)):
+                        for l in range(L):
                             if m[l] > 0.0:
                                 world_pos[p * L + l, j] = vec3(jx[l], jy[l], jz[l])
                                 world_rot[p * L + l, j] = vec4(wqx[l], wqy[l], wqz[l], wqw[l])
-                    for l in ti.static(range(L)):
+                    for l in range(L):
                         i = p * L + l
                         if m[l] > 0.0:
                             err = 0.0

@@ -329,6 +329,9 @@ def test_solve_is_deterministic_bitwise():
     (dict(rest_weight=-1.0), "rest_weight"),
     (dict(orientations=np.full((2, 1, 3), np.nan)), "orientations"),
     (dict(orientations=np.ones((2, 1, 3))), "no local axis"),
+    (dict(max_iterations=2**31), r"max_iterations: expected an integer in \[1, 10,000\]"),  # wrapped to 0 before
+    (dict(max_iterations=10_001), "max_iterations"),
+    (dict(weights=[1j]), "real numbers"),
 ])
 def test_bad_arguments_raise_naming_the_argument(kwargs, match):
     crowd = cik.Crowd(cik.Rig.chain(3, dim=3), n=2)
@@ -339,11 +342,24 @@ def test_bad_arguments_raise_naming_the_argument(kwargs, match):
 @pytest.mark.parametrize("targets, match", [
     (np.full((2, 1, 3), np.nan), "finite"), (np.full((2, 1, 3), np.inf), "finite"), (np.zeros((2, 2, 3)), "shape"),
     (np.zeros((3, 1, 3)), "shape"),
+    (np.full((2, 1, 3), 2e19), r"within \+-10000"),  # the report's error was inf
+    (np.zeros((2, 1, 3), np.complex64) + 1j, "real numbers"),  # was truncated to its real part
 ])
 def test_bad_targets_raise(targets, match):
     crowd = cik.Crowd(cik.Rig.chain(3, dim=3), n=2)
     with pytest.raises(ValueError, match=f"targets.*{match}|{match}"):
         crowd.solve(targets)
+
+
+def test_numpy_scalars_are_accepted_wherever_numbers_are():
+    crowd = cik.Crowd(cik.Rig.chain(3, np.float32(0.5), dim=3), n=np.int64(2), spacing=np.float32(1.5))
+    rep = crowd.solve(crowd.effector_positions() + np.float32([-0.2, 0.3, 0.1]), max_iterations=np.int32(30),
+                      tolerance=np.float32(1e-3), rest_weight=np.float64(0.0))
+    assert np.all(rep.converged)
+    with pytest.raises(ValueError, match="spacing"):
+        cik.Crowd(cik.Rig.chain(3, dim=3), n=4, spacing=1e300)
+    with pytest.raises(ValueError, match="positions"):
+        crowd.set_roots(np.full((2, 3), 1e5, np.float32))
 
 
 @st.composite

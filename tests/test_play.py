@@ -161,3 +161,22 @@ def test_frames_and_seconds_together_are_refused(tiny):
     with pytest.raises(SystemExit) as exc:
         main(["play", str(tiny), "--frames", "3", "--seconds", "1"])
     assert exc.value.code == 2
+
+
+def test_cuda_without_a_gpu_is_bad_input_for_play(tiny, tmp_path):
+    """`play --arch cuda` on a machine without a GPU is refused like bad input (exit 2, one line, no file), as
+    `bench --arch cuda` is; run in a fresh process, since this one already runs Taichi on the CPU."""
+    import subprocess
+    import sys
+
+    from crowd_ik import runtime
+
+    if runtime._probe_cuda_device():
+        pytest.skip("this machine has a CUDA GPU")
+    out = tmp_path / "x.mp4"
+    proc = subprocess.run([sys.executable, "-m", "crowd_ik.cli", "play", str(tiny), "--arch", "cuda", "--frames", "2",
+                           "-o", str(out)], capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("[Taichi]")]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and "cuda" in lines[0] and "no CUDA GPU" in lines[0]
+    assert not out.exists() and list(tmp_path.glob("*.mp4")) == []

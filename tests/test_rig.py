@@ -68,6 +68,15 @@ def test_humanoid_scales_with_height():
     (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1, 0, math.nan)))), "finite"),
     (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1, 0, 0))), (Effector("x", 5),)), "out of range"),
     (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1, 0, 0))), (Effector("x", 1, -1.0),)), "weight"),
+    # values a float32 kernel cannot honour, refused at the edge (a 1e39 offset made a NaN pose look converged)
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1e39, 0, 0)))), r"within \+-10000 m"),
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0.5, (1, 0, 0)))), "parent: expected an integer"),
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", True, (1, 0, 0)))), "parent: expected an integer"),
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1j, 0, 0)))), "real numbers"),
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1, 0, 0))), (Effector("x", 1.0),)), "integer index"),
+    (lambda: Rig((Joint("root", -1, (0, 0, 0)), Joint("a", 0, (1, 0, 0))), (Effector("x", 1, axis=(0, 0, 0)),)),
+     "axis must be non-zero"),
+    (lambda: Rig.chain(2, bone_length=2e4), "bone_length"),
 ])
 def test_invalid_rigs_raise_clearly(make, match):
     with pytest.raises(ValueError, match=match):
@@ -82,3 +91,13 @@ def test_arrays_layout():
     kids = [list(a["child_list"][a["child_start"][j]:a["child_start"][j + 1]]) for j in range(h.n_joints)]
     assert kids == [list(c) for c in h.children]
     assert sorted(sum(kids, [])) == list(range(1, h.n_joints))
+
+
+def test_numpy_scalars_are_numbers():
+    """np.float32 bone lengths and np.int64 parents and effector joints are accepted like Python numbers."""
+    rig = Rig.chain(np.int64(3), bone_length=np.float32(0.25))
+    assert rig.n_joints == 4 and rig.reach[0] == pytest.approx(0.75)
+    tree = Rig((Joint("root", np.int64(-1), (0, 0, 0)), Joint("a", np.int32(0), np.float32([1, 0, 0]))),
+               (Effector("x", np.int64(1), np.float32(2.0), axis=(0, 2, 0)),))
+    assert tree.joints[1].parent == 0 and type(tree.joints[1].parent) is int
+    assert tree.effectors[0].axis == (0.0, 1.0, 0.0)  # stored unit length

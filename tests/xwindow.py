@@ -34,14 +34,21 @@ def crowd_ik_window(argv: list[str], title: str, cwd):
         with os.fdopen(r) as fh:
             display = ":" + fh.readline().strip()
         env = dict(os.environ, DISPLAY=display)
-        app = subprocess.Popen([sys.executable, "-m", "crowd_ik", *argv], cwd=cwd, env=env,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        win = ""
-        deadline = time.monotonic() + 90
-        while not win and time.monotonic() < deadline and app.poll() is None:
-            time.sleep(0.3)
-            win = xdo(display, "search", "--name", title).split("\n")[0].strip()
-        assert win, f"no window appeared: {app.poll()} {app.stderr.read() if app.poll() is not None else ''}"
+        win, why = "", ""
+        for _ in range(3):  # a fresh Xvfb now and then refuses the first GLX window under load: start again
+            app = subprocess.Popen([sys.executable, "-m", "crowd_ik", *argv], cwd=cwd, env=env,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            deadline = time.monotonic() + 90
+            while not win and time.monotonic() < deadline and app.poll() is None:
+                time.sleep(0.3)
+                win = xdo(display, "search", "--name", title).split("\n")[0].strip()
+            if win:
+                break
+            why = f"{app.poll()} {app.stderr.read() if app.poll() is not None else ''}"
+            if app.poll() is None or "fails to create a window" not in why:
+                break
+            time.sleep(1.0)
+        assert win, f"no window appeared: {why}"
         time.sleep(1.5)
         yield app, display, win
     finally:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.solvers.limits import limit_pseudo_angles, pseudo_angle  # noqa: F401  (the twins' too)
 from crowd_ik.solvers.settings import GIMBAL  # |R02| from which XYZ is gimbal-locked
 
 
@@ -51,24 +52,6 @@ def quat_to_euler_xyz(q: np.ndarray) -> np.ndarray:
     a = np.where(lock, np.arctan2(r21, r11), np.arctan2(-r12, r22))
     c = np.where(lock, 0.0, np.arctan2(-r01, r00))
     return np.stack([a, b, c], axis=-1)
-
-
-def pseudo_angle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A stand-in for atan2(y, x) with the same order on (-pi, pi] and range (-2, 2], without trigonometry:
-    p = y / (|x| + |y|) on the right half plane, 2 - p above and -2 - p below on the left one."""
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    p = y / np.maximum(np.abs(x) + np.abs(y), 1e-30)
-    return np.where(x < 0, np.where(y >= 0, 2.0 - p, -2.0 - p), p)
-
-
-def limit_pseudo_angles(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """(D, 2) float32 pseudo_angle of each DOF's lower and upper limit, for the kernels' cheap "does a limit
-    bite" test: -3 for a lower limit at or below -pi (it never bites), 3 for an upper one at or above pi."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    with np.errstate(invalid="ignore"):
-        p_lo = np.where(lo <= -np.pi, -3.0, np.where(lo > np.pi, 3.0, pseudo_angle(np.cos(lo), np.sin(lo))))
-        p_hi = np.where(hi >= np.pi, 3.0, np.where(hi < -np.pi, -3.0, pseudo_angle(np.cos(hi), np.sin(hi))))
-    return np.ascontiguousarray(np.stack([p_lo, p_hi], axis=-1), np.float32)
 
 
 def wrap_angle(t: np.ndarray) -> np.ndarray:
