@@ -108,13 +108,13 @@ class Crowd:
         if not isinstance(rig, Rig):
             raise ValueError(f"rig: expected a crowd_ik.Rig (got {type(rig).__name__})")
         self.n = _positive_int(n, "n")
-        if isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(spacing) and 0 <= spacing * math.sqrt(max(self.n, 1)) <= MAX_EXTENT):
-            raise ValueError(f"spacing: expected a number >= 0 that keeps the grid within {MAX_EXTENT:g} m "
-                             f"(got {spacing!r})")
         need = self.bytes_per_character(rig) * self.n
         if need > 16 * 2**30:
             raise ValueError(f"n: {self.n} characters of {rig.name} need about {need / 2**30:.1f} GiB (limit 16 GiB)")
+        if isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(spacing) and 0 <= spacing * math.sqrt(self.n) <= MAX_EXTENT):
+            raise ValueError(f"spacing: expected a number >= 0 that keeps the grid within {MAX_EXTENT:g} m "
+                             f"(got {spacing!r})")
         self.rig, self.seed, self.dim = rig, int(seed), rig.dim
         runtime.ensure_init()
         import taichi as ti
