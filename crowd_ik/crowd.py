@@ -476,7 +476,7 @@ class Crowd:
                 self._stalled, rig.n_joints,
             )
             return
-        L = lane_plan.pass_lanes(settings.lanes())
+        L = settings.lanes()  # one vector per value: 2L ran 12 % faster but took 31 s instead of ~15 s to compile
         dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
             ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,

@@ -298,17 +298,19 @@ def free_recover(L: int, max_joints: int):
                             turn = (ga[p, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
                             if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
                                 ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
-                                sx, sy, sz, sw = swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
-                                                             bone, child_list, gx, gy, gz, ga)
-                                if ti.static(SWING_ROUNDS > 1):
-                                    if n_active.max() > 1.0:  # a sub-base: refine (fabrik.SWING_ROUNDS rounds)
-                                        tx, ty, tz, tw = sx, sy, sz, sw
-                                        for _ in range(SWING_ROUNDS - 1):
-                                            tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw,
-                                                                         jx, jy, jz, bone, child_list, gx, gy, gz, ga)
-                                        several = n_active > 1.0
-                                        sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
-                                        sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
+                                # one round, or SWING_ROUNDS where some lane's joint is a sub-base (a loop around
+                                # one call site: each inlined copy of swing_round costs ~5 s of compile time)
+                                rounds = 1 if n_active.max() <= 1.0 else SWING_ROUNDS
+                                tx, ty, tz, tw = qx, qy, qz, qw
+                                sx, sy, sz, sw = qx, qy, qz, qw
+                                for r in range(rounds):
+                                    tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
+                                                                 bone, child_list, gx, gy, gz, ga)
+                                    if r == 0:
+                                        sx, sy, sz, sw = tx, ty, tz, tw
+                                several = n_active > 1.0  # the sub-base lanes take the refined rotation
+                                sx, sy = ti.select(several, tx, sx), ti.select(several, ty, sy)
+                                sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
                                 qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
                                 qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
                                 for l in range(L):
