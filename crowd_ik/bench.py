@@ -52,8 +52,10 @@ from pathlib import Path
 
 import numpy as np
 
+from crowd_ik.solvers.registry import DLS, FABRIK, METHODS
+
 RIGS = ("chain16", "humanoid")
-SOLVERS = ("fabrik", "dls", "ccd")
+SOLVERS = METHODS
 ARCHES = ("cpu", "cuda")
 PEERS = ("numba",)  # compiled peers the bench can time beside crowd_ik (crowd_ik/bench_peers.py)
 DEFAULT_CHARS = (100, 1000, 10000, 100000)
@@ -72,7 +74,7 @@ GAME_SCENE_WARMUP = 180  # world steps before timing it: the shooters' first bul
 
 FULL = dict(chars=DEFAULT_CHARS, solvers=SOLVERS, rigs=RIGS, repeats=3, budget=10.0, game_chars=10000, game_frames=60,
             scene_steps=120)
-QUICK = dict(chars=(100, 1000), solvers=("fabrik", "dls"), rigs=("chain16",), repeats=1, budget=1.0, game_chars=256,
+QUICK = dict(chars=(100, 1000), solvers=(FABRIK, DLS), rigs=("chain16",), repeats=1, budget=1.0, game_chars=256,
              game_frames=5, scene_steps=0)
 
 
@@ -409,9 +411,9 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     wl = game_workload(n)
     rig = wl.rig
     J, E = rig.n_joints, rig.n_effectors
-    Crowd(rig, min(n, 16), spacing=SPACING).solve(wl.targets[: min(n, 16)], "fabrik", 2, wl.tolerance)  # compile
+    Crowd(rig, min(n, 16), spacing=SPACING).solve(wl.targets[: min(n, 16)], FABRIK, 2, wl.tolerance)  # compile
     crowd = Crowd(rig, n, spacing=SPACING)
-    cold_s, cold = _solve_timed(crowd, wl, "fabrik")
+    cold_s, cold = _solve_timed(crowd, wl, FABRIK)
     cold_out = _outcome(cold.error, cold.iterations, cold.status == Status.CONVERGED, cold.status != Status.UNREACHABLE)
 
     import taichi as ti
@@ -459,7 +461,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         targets = wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0))  # feet planted
         now = 1 - now
         t0 = time.perf_counter()
-        rep = crowd.solve(targets, method="fabrik", max_iterations=4, tolerance=wl.tolerance)
+        rep = crowd.solve(targets, method=FABRIK, max_iterations=4, tolerance=wl.tolerance)
         t1 = time.perf_counter()
         capsules(now)
         t2 = time.perf_counter()
@@ -503,7 +505,7 @@ def game_scene(steps: int, name: str = GAME_SCENE, warmup: int = GAME_SCENE_WARM
     from crowd_ik.game import World
     from crowd_ik.scene import load_scene, scene_with
 
-    scene = scene_with(load_scene(name), **{"solver.method": "fabrik", "solver.iterations": 4})
+    scene = scene_with(load_scene(name), **{"solver.method": FABRIK, "solver.iterations": 4})
     world = World(scene, hud_timings=False)
     for _ in range(warmup):
         world.step_world()
@@ -791,7 +793,7 @@ def evaluate_targets(records: list[dict], games: list[dict]) -> list[dict]:
     out = []
     for arch in dict.fromkeys(r["arch"] for r in records):
         rows = [r for r in records if r["arch"] == arch and r["rig"] == "chain16"]
-        for solver, goal in (("fabrik", 20.0), ("dls", 50.0)):
+        for solver, goal in ((FABRIK, 20.0), (DLS, 50.0)):
             mine = [r for r in rows if r["solver"] == solver]
             if not mine:
                 continue

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-COLOURS = {"fabrik": "#1f77b4", "dls": "#d62728", "ccd": "#2ca02c"}
+from crowd_ik.solvers.registry import CCD, DLS, FABRIK
+
+COLOURS = {FABRIK: "#1f77b4", DLS: "#d62728", CCD: "#2ca02c"}
 MARKERS = {"cpu": "o", "cuda": "^"}
 
 

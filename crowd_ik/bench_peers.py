@@ -23,6 +23,8 @@ import time
 
 import numpy as np
 
+from crowd_ik.solvers.registry import DLS, FABRIK
+
 DLS_LAMBDA = 0.1
 
 
@@ -136,7 +138,7 @@ _KERNELS: dict = {}
 
 def _kernels():
     if not _KERNELS:
-        _KERNELS["fabrik"], _KERNELS["dls"] = _build()
+        _KERNELS[FABRIK], _KERNELS[DLS] = _build()
     return _KERNELS
 
 
@@ -149,7 +151,7 @@ def solve(method: str, start: np.ndarray, targets: np.ndarray, tolerance: float,
     iters = np.zeros(pos.shape[0], np.int32)
     err = np.zeros(pos.shape[0], dtype)
     t0 = time.perf_counter()
-    if method == "fabrik":
+    if method == FABRIK:
         lengths = np.linalg.norm(np.diff(pos[0], axis=0), axis=-1).astype(dtype)
         k(pos, lengths, tg, dtype(tolerance), max_iterations, iters, err)
     else:
@@ -157,7 +159,7 @@ def solve(method: str, start: np.ndarray, targets: np.ndarray, tolerance: float,
     return dict(time_s=time.perf_counter() - t0, error=err.astype(np.float64), iterations=iters, positions=pos)
 
 
-PEER_METHODS = ("fabrik", "dls")  # the solvers that have a numba peer
+PEER_METHODS = (FABRIK, DLS)  # the solvers that have a numba peer
 PEER_RIG = "chain16"              # the workload the peers solve (one chain, one effector)
 DTYPES = {"f64": np.float64, "f32": np.float32}
 
@@ -215,7 +217,7 @@ def targets(records: list[dict], isa: str) -> list[dict]:
     """The SIMD-lanes issue's goals against the float64 numba peer: FABRIK >= 3x (2x without AVX-512), DLS >= 2x
     (1.5x), each at the largest N measured."""
     out = []
-    goals = {"fabrik": 3.0 if isa == "avx512" else 2.0, "dls": 2.0 if isa == "avx512" else 1.5}
+    goals = {FABRIK: 3.0 if isa == "avx512" else 2.0, DLS: 2.0 if isa == "avx512" else 1.5}
     for arch in dict.fromkeys(r["arch"] for r in records):
         for solver, goal in goals.items():
             mine = [r for r in records if r["arch"] == arch and r["solver"] == solver and "vs_numba_f64" in r]

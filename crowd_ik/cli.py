@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from crowd_ik import __version__
+from crowd_ik.solvers.registry import METHODS, PLANAR_DEFAULT, PLANAR_METHODS
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -42,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--size", default=None, metavar="WxH", help="frame size, e.g. 1280x720 (even numbers)")
     play.add_argument("--fps", type=float, default=None, help="video frame rate")
     play.add_argument("--seed", type=int, default=None, help="random seed (overrides the scene)")
-    play.add_argument("--solver", choices=("fabrik", "dls", "ccd"), default=None, help="IK method (overrides the scene)")
+    play.add_argument("--solver", choices=METHODS, default=None, help="IK method (overrides the scene)")
     play.add_argument("--stats", default=None, metavar="F.json", help="write the run summary as JSON")
     play.add_argument("--still", type=int, default=None, metavar="K", help="write only frame K as a PNG (-o F.png)")
     play.add_argument("--live", action="store_true", help="play in a window (WASD to move, mouse to aim, click to fire)")
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     mouse = sub.add_parser("mouse", help="single-character IK: drag the target with the mouse, or replay a path to video")
     mouse.add_argument("--bones", type=int, default=None, help="planar chain bones (default 4; with --keyframes, the file's angle count)")
     mouse.add_argument("--rig", choices=("chain", "humanoid"), default="chain", help="chain (planar) or humanoid (3D)")
-    mouse.add_argument("--method", choices=("newton", "dls", "fabrik", "ccd", "follow"), default="dls", help="IK method (default dls)")
+    mouse.add_argument("--method", choices=PLANAR_METHODS, default=PLANAR_DEFAULT,
+                       help=f"IK method (default {PLANAR_DEFAULT})")
     mouse.add_argument("--limits", action="store_true", help="honour joint limits")
     mouse.add_argument("--path", default=None, metavar="PATH.csv", help="replay a target path (CSV t,x,y) to video")
     mouse.add_argument("--keyframes", default=None, metavar="FILE.csv", help="ease between key poses (CSV duration_s, angles in degrees)")

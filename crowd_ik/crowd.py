@@ -14,8 +14,8 @@ import numpy as np
 
 from crowd_ik import runtime
 from crowd_ik.rig import MAX_EXTENT, Rig
+from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD, METHODS
 
-METHODS = ("fabrik", "dls", "ccd")
 # Bytes of Taichi state per joint and per DOF of one character (positions, rotations, scratch).
 _BYTES_PER_JOINT = 4 * (3 + 4 + 4 + 3 + 3 + 1)
 _BYTES_PER_DOF = 4 * 4
@@ -37,7 +37,7 @@ class SolveReport:
     error: np.ndarray  # (N,) float32, metres: max over effectors of |effector - target|
     iterations: np.ndarray  # (N,) int32: updates applied
     status: np.ndarray  # (N,) int8 of Status
-    method: str = "fabrik"
+    method: str = DEFAULT_METHOD
 
     @property
     def converged(self) -> np.ndarray:
@@ -279,7 +279,7 @@ class Crowd:
         return out.to_numpy()[:, :, : self.rig.n_dof]
 
     # ---------------------------------------------------------------- solve
-    def solve(self, targets, method: str = "fabrik", max_iterations: int = 20, tolerance: float = 1e-3,
+    def solve(self, targets, method: str = DEFAULT_METHOD, max_iterations: int = 20, tolerance: float = 1e-3,
               weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
               damping=None, joint_weights=None, balance_weight: float = 0.0) -> SolveReport:
         """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.

@@ -30,10 +30,13 @@ import numpy as np
 
 from crowd_ik import planar
 from crowd_ik.mouse_view import ChainPicture, View, draw_background, draw_chain_frame, reachable_mask, tips
+from crowd_ik.solvers.registry import (
+    CCD, DLS, FABRIK, FOLLOW, METHODS as CROWD_METHODS, NEWTON, PLANAR_DEFAULT, PLANAR_METHODS,
+)
 
-METHODS = ("newton", "dls", "fabrik", "ccd", "follow")
-TAICHI_METHODS = ("fabrik", "ccd")  # the chain's methods solved by a Crowd of one
-HUMANOID_METHODS = ("fabrik", "dls", "ccd")
+METHODS = PLANAR_METHODS
+TAICHI_METHODS = (FABRIK, CCD)  # the chain's methods solved by a Crowd of one
+HUMANOID_METHODS = CROWD_METHODS
 KEYS = {str(k + 1): m for k, m in enumerate(METHODS)}
 DEFAULT_BONES, MAX_BONES = 4, 100
 LOST_TOL = 0.02  # chain units: a tip farther than this from its target has lost it
@@ -87,7 +90,7 @@ def _limited_chain_rig(n: int, limits: bool):
 class ChainSession:
     """The planar demo's state: angles, method, limits, target; :meth:`step` solves one frame."""
 
-    def __init__(self, n_bones: int = DEFAULT_BONES, method: str = "dls", limits: bool = False):
+    def __init__(self, n_bones: int = DEFAULT_BONES, method: str = PLANAR_DEFAULT, limits: bool = False):
         if method not in METHODS:
             raise ValueError(f"--method: expected one of {', '.join(METHODS)} (got {method!r})")
         self.n, self.method, self.limits = n_bones, method, bool(limits)
@@ -143,17 +146,17 @@ class ChainSession:
         """Solve one frame toward ``self.target``; update ``error`` and ``lost``."""
         lo, hi = self.bounds
         reached = True
-        if self.method == "newton":
+        if self.method == NEWTON:
             # the homework's 8 pseudoinverse steps; with limits, clamped after each (coursework 4.3)
             aim = self._aim()
             t = self.thetas
             for _ in range(8 if self.limits else 1):
                 t = np.clip(planar.newton(t, aim, iterations=1 if self.limits else 8), lo, hi)
             self.thetas = t
-        elif self.method == "dls":
+        elif self.method == DLS:
             self.thetas = planar.dls(self.thetas, self.target, damping=0.1, iterations=100, tolerance=1e-4,
                                      limits=(lo, hi) if self.limits else None)
-        elif self.method == "follow":
+        elif self.method == FOLLOW:
             aim = self._aim()
             t, reached = planar.follow(self.thetas, aim - planar.chain(self.thetas), threshold=0.05, max_depth=10)
             self.thetas = np.clip(t, lo, hi)
@@ -166,7 +169,7 @@ class ChainSession:
         if not self.limits:
             self.thetas = _wrap(self.thetas)
         self.error = float(np.linalg.norm(planar.chain(self.thetas) - self.target))
-        if self.method == "follow":  # the lab's rule: lost when move() gives up
+        if self.method == FOLLOW:  # the lab's rule: lost when move() gives up
             beyond = np.linalg.norm(self.target) > self.reach
             self.lost = bool(not reached or beyond or self.error > FOLLOW_DRIFT)
         else:
@@ -313,7 +316,7 @@ class Replay:
         return len(self.angles)
 
 
-def replay_path(csv, output, *, n_bones=DEFAULT_BONES, method="dls", limits=False, size=(720, 720), fps=None,
+def replay_path(csv, output, *, n_bones=DEFAULT_BONES, method=PLANAR_DEFAULT, limits=False, size=(720, 720), fps=None,
                 force=False) -> Replay:
     """Solve the chain toward each target of a path CSV and write one frame per target."""
     from crowd_ik.video import open_sink
@@ -355,7 +358,7 @@ def replay_keyframes(csv, output, *, n_bones=None, limits=False, size=(720, 720)
         raise ValueError(f"{src}: has {n} angles per key pose but --bones is {n_bones}")
     if n > MAX_BONES:
         raise ValueError(f"{src}: {n} angles per key pose; at most {MAX_BONES} bones")
-    session = ChainSession(n, "dls", limits)
+    session = ChainSession(n, PLANAR_DEFAULT, limits)
     if limits:
         lo, hi = session.bounds
         bad = np.argwhere((poses < lo - 1e-9) | (poses > hi + 1e-9))

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from crowd_ik.render import draw_hud
+from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD
 
 # BGR colours
 BACKGROUND = (34, 28, 26)
@@ -273,7 +274,7 @@ class HumanoidSession:
     :meth:`step` solves the whole body (a Crowd of one) toward the targets.
     """
 
-    def __init__(self, size=(720, 720), method: str = "fabrik", iterations: int = 20):
+    def __init__(self, size=(720, 720), method: str = DEFAULT_METHOD, iterations: int = 20):
         from crowd_ik.crowd import Crowd
         from crowd_ik.render import Camera
         from crowd_ik.rig import Rig

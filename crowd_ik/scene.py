@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD, METHODS
+
 MAX_CHARACTERS = 1_000_000
 MAX_POOL_SIZE = 10_000_000
 MAX_SHOOTERS = 100_000
@@ -243,7 +245,7 @@ class Time:
 class Solver:
     """The IK method and its per-frame budget."""
 
-    method: str = _key("fabrik", _Choice("fabrik", "dls", "ccd"), "IK method")
+    method: str = _key(DEFAULT_METHOD, _Choice(*METHODS), "IK method")
     iterations: int = _key(8, _Int(1, MAX_ITERATIONS), "iterations per frame")
     tolerance: float = _key(0.005, _Float(0), "converged when every effector is this close, metres")
 
