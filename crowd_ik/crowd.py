@@ -13,6 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from crowd_ik import runtime
+from crowd_ik.checks import (
+    MAX_ITERATIONS, as_array as _as_array, non_negative as _non_negative, positive_int as _positive_int,
+)
 from crowd_ik.rig import MAX_EXTENT, Rig
 from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD, METHODS
 
@@ -47,45 +50,6 @@ class SolveReport:
         counts = {s.name.lower(): int(np.count_nonzero(self.status == s)) for s in Status}
         return dict(method=self.method, n=int(self.error.size), mean_error=float(self.error.mean()),
                     max_error=float(self.error.max()), mean_iterations=float(self.iterations.mean()), **counts)
-
-
-MAX_ITERATIONS = 10_000  # the most iterations one solve may ask for (the kernels count in int32 and float32)
-
-
-def _as_array(value, name: str, shape: tuple, dtype=np.float32, limit: float | None = None) -> np.ndarray:
-    """Broadcast ``value`` to ``shape`` as a C-contiguous array; refuse complex, NaN/inf, |x| > limit and bad
-    shapes."""
-    arr = np.asarray(value)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
-                                   or arr.dtype == bool):
-        raise ValueError(f"{name}: expected real numbers (got dtype {arr.dtype})")
-    try:
-        arr = np.broadcast_to(arr, shape)
-    except ValueError:
-        raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
-    arr = np.ascontiguousarray(arr, dtype=dtype)
-    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
-        bad = arr[~np.isfinite(arr)].flat[0]
-        raise ValueError(f"{name}: must be finite (got {bad})")
-    if limit is not None and arr.size and float(np.max(np.abs(arr))) > limit:
-        raise ValueError(f"{name}: must be within +-{limit:g} (got {float(arr.flat[np.argmax(np.abs(arr))])})")
-    return arr
-
-
-def _positive_int(value, name: str, most: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 \
-            or (most is not None and value > most):
-        bound = "a positive integer" if most is None else f"an integer in [1, {most:,}]"
-        raise ValueError(f"{name}: expected {bound} (got {value!r})")
-    return int(value)
-
-
-def _non_negative(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise ValueError(f"{name}: expected a number (got {value!r})")
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{name}: expected a finite number >= 0 (got {value!r})")
-    return float(value)
 
 
 def grid_positions(n: int, spacing: float, dim: int) -> np.ndarray:

@@ -380,7 +380,8 @@ def test_property_never_nan_lengths_and_limits_kept(rig, seed, where):
     reach = rig.reach[0]
     d = rng.normal(size=(n, rig.dim))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    radius = {"inside": rng.uniform(0, reach, (n, 1)), "root": np.zeros((n, 1)), "far": np.full((n, 1), 1e3 * reach),
+    far = min(1e3 * reach, 5e3)  # (targets stay within the library's +-1e4 m)
+    radius = {"inside": rng.uniform(0, reach, (n, 1)), "root": np.zeros((n, 1)), "far": np.full((n, 1), far),
               "surface": np.full((n, 1), reach)}[where]
     crowd = cik.Crowd(rig, n=n, spacing=0.0)
     rep = crowd.solve((d * radius)[:, None].astype(np.float32), max_iterations=20, tolerance=1e-3 * reach)
