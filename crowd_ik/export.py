@@ -19,6 +19,7 @@ first N frames are then written.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -169,6 +170,9 @@ def run(args) -> int:
     if args.frame < 0:
         raise ValueError(f"--frame: must be zero or a positive integer (got {args.frame})")
     scene = load_scene(args.scene)
+    if args.frame >= scene.n_frames:  # the scene's own length bounds the simulation (no run until killed)
+        raise ValueError(f"--frame: {args.scene} has {scene.n_frames} frames, so 0 to {scene.n_frames - 1} "
+                         f"(got {args.frame})")
     out = args.output if args.output is not None else f"{scene.name}_frame{args.frame}.glb"
     if Path(out).suffix.lower() != ".glb":
         raise ValueError(f"-o: the posed world is written as a .glb file (got {out!r})")
@@ -176,8 +180,11 @@ def run(args) -> int:
     runtime.init(arch=args.arch, threads=args.threads)
     from crowd_ik.game import World
 
+    from tqdm import tqdm
+
     world = World(scene)
-    for _ in range(args.frame):
+    for _ in tqdm(range(args.frame), desc=f"simulating {scene.name}", unit="frame", file=sys.stderr,
+                  dynamic_ncols=True, leave=False, disable=args.frame < 30):
         world.step()
     meshes = world_meshes(world)
     write_glb(out, meshes, force=args.force)

@@ -80,6 +80,8 @@ def test_export_does_not_clobber(tiny, tmp_path):
 @pytest.mark.parametrize("argv,message", [
     (["-o", "pose.obj"], ".glb"),
     (["--frame", "-1"], "--frame"),
+    (["--frame", "20"], "has 20 frames, so 0 to 19"),  # the scene's length (100000000 ran until killed)
+    (["--frame", "100000000"], "--frame"),
     (["--bvh", "walk.txt"], "--bvh"),
 ])
 def test_bad_export_arguments_exit_2(tiny, tmp_path, monkeypatch, capsys, argv, message):
