@@ -484,8 +484,39 @@ def memory_estimate(scene: Scene) -> dict[str, int]:
 _LINE = re.compile(r"\(at line (\d+), column (\d+)\)")
 
 
+MAX_NESTING = 32  # arrays and tables inside one another; the TOML parser recurses (5,000 overflowed its stack)
+
+
+def _check_nesting(text: str, source: str) -> None:
+    """Refuse arrays and inline tables nested deeper than MAX_NESTING, naming the line (strings and comments
+    skipped)."""
+    depth, line, quote, i = 0, 1, "", 0
+    while i < len(text):
+        ch = text[i]
+        if ch == "\n":
+            line += 1
+        elif quote:
+            if ch == "\\" and quote == '"':
+                i += 1
+            elif ch == quote:
+                quote = ""
+        elif ch in "\"'":
+            quote = ch
+        elif ch == "#":
+            while i + 1 < len(text) and text[i + 1] != "\n":
+                i += 1
+        elif ch in "[{":
+            depth += 1
+            if depth > MAX_NESTING:
+                raise ValueError(f"{source}: line {line}: invalid TOML: nested deeper than {MAX_NESTING} levels")
+        elif ch in "]}":
+            depth = max(depth - 1, 0)
+        i += 1
+
+
 def parse_scene(text: str, source: str = "<string>", path: Path | None = None) -> Scene:
     """Parse and validate TOML text; `source` names it in error messages."""
+    _check_nesting(text, source)
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -275,3 +275,24 @@ def test_readme_documents_every_key():
     readme = (SCENES / "README.md").read_text()
     missing = [k for k in ALL_KEYS if f"| `{k}` |" not in readme]
     assert not missing, f"scenes/README.md lacks {missing}"
+
+
+def test_deep_nesting_is_refused_with_the_line_not_a_recursion_error():
+    """5,000 nested arrays overflowed the TOML parser's recursion; brackets in strings and comments do not count."""
+    from crowd_ik.scene import parse_scene
+
+    with pytest.raises(ValueError, match=r"deep\.toml: line 2: invalid TOML: nested deeper than 32 levels"):
+        parse_scene("seed = 1\nx = " + "[" * 5000 + "]" * 5000 + "\n", "deep.toml")
+    assert parse_scene('# [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[\nseed = 4\n', "c.toml").seed == 4
+    assert parse_scene("seed = 5\ncharacters = { count = 3 }\n", "ok.toml").characters.count == 3
+
+
+def test_a_closed_pipe_ends_the_listing_quietly():
+    """`crowd-ik scenes FILE | head -1` exits 0 with no traceback (it raised BrokenPipeError)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(f"{sys.executable} -m crowd_ik.cli scenes scenes/arena.toml | head -c 1",
+                          shell=True, capture_output=True, text=True, timeout=120,
+                          cwd=str(__import__("pathlib").Path(__file__).resolve().parent.parent))
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr
