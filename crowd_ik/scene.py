@@ -484,6 +484,7 @@ def memory_estimate(scene: Scene) -> dict[str, int]:
 _LINE = re.compile(r"\(at line (\d+), column (\d+)\)")
 
 
+MAX_SCENE_BYTES = 16 * 2**20  # a scene is a few kilobytes; anything this large is not one
 MAX_NESTING = 32  # arrays and tables inside one another; the TOML parser recurses (5,000 overflowed its stack)
 
 
@@ -559,10 +560,16 @@ def load_scene(path: str | Path | None = None) -> Scene:
         raise FileNotFoundError(f"{path}: no such scene file")
     if p.is_dir():
         raise IsADirectoryError(f"{path}: is a folder, not a scene file")
+    if not p.is_file():  # a FIFO would block, /dev/zero never ends
+        raise ValueError(f"{path}: not a regular file")
+    if p.stat().st_size > MAX_SCENE_BYTES:
+        raise ValueError(f"{path}: {p.stat().st_size:,} bytes; a scene file holds at most {MAX_SCENE_BYTES:,}")
     try:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     return parse_scene(text, source=str(path) if p == Path(path) else str(p), path=p)
 
 

@@ -296,3 +296,22 @@ def test_a_closed_pipe_ends_the_listing_quietly():
                           shell=True, capture_output=True, text=True, timeout=120,
                           cwd=str(__import__("pathlib").Path(__file__).resolve().parent.parent))
     assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr
+
+
+def test_only_regular_readable_files_of_sensible_size_are_read(tmp_path):
+    """A FIFO (it blocked forever), /dev/zero (MemoryError) and a 17 MB file are refused with one line."""
+    import os
+
+    from crowd_ik.scene import load_scene
+
+    fifo = tmp_path / "pipe.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="pipe.toml: not a regular file"):
+        load_scene(str(fifo))
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ValueError, match="not a regular file"):
+            load_scene("/dev/zero")
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * (17 * 2**20))
+    with pytest.raises(ValueError, match="at most 16,777,216"):
+        load_scene(str(big))
