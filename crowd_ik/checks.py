@@ -8,6 +8,16 @@ import math
 
 import numpy as np
 
+def is_integer(value) -> bool:
+    """A Python or numpy integer, not a bool."""
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer))
+
+
+def is_number(value) -> bool:
+    """A real Python or numpy number, not a bool (finiteness is the caller's to check)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+
+
 MAX_ITERATIONS = 10_000  # the most iterations one solve may ask for (the kernels count in int32 and float32)
 
 
@@ -32,7 +42,7 @@ def as_array(value, name: str, shape: tuple, dtype=np.float32, limit: float | No
 
 
 def positive_int(value, name: str, most: int | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 \
+    if not is_integer(value) or value < 1 \
             or (most is not None and value > most):
         bound = "a positive integer" if most is None else f"an integer in [1, {most:,}]"
         raise ValueError(f"{name}: expected {bound} (got {value!r})")
@@ -40,7 +50,7 @@ def positive_int(value, name: str, most: int | None = None) -> int:
 
 
 def non_negative(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+    if not is_number(value):
         raise ValueError(f"{name}: expected a number (got {value!r})")
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"{name}: expected a finite number >= 0 (got {value!r})")

@@ -14,7 +14,7 @@ import numpy as np
 
 from crowd_ik import runtime
 from crowd_ik.checks import (
-    MAX_ITERATIONS, as_array as _as_array, non_negative as _non_negative, positive_int as _positive_int,
+    MAX_ITERATIONS, as_array as _as_array, is_number, non_negative as _non_negative, positive_int as _positive_int,
 )
 from crowd_ik.rig import MAX_EXTENT, Rig
 from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD, METHODS
@@ -75,8 +75,7 @@ class Crowd:
         need = self.bytes_per_character(rig) * self.n
         if need > 16 * 2**30:
             raise ValueError(f"n: {self.n} characters of {rig.name} need about {need / 2**30:.1f} GiB (limit 16 GiB)")
-        if isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(spacing) and 0 <= spacing * math.sqrt(self.n) <= MAX_EXTENT):
+        if not is_number(spacing) or not (math.isfinite(spacing) and 0 <= spacing * math.sqrt(self.n) <= MAX_EXTENT):
             raise ValueError(f"spacing: expected a number >= 0 that keeps the grid within {MAX_EXTENT:g} m "
                              f"(got {spacing!r})")
         self.rig, self.seed, self.dim = rig, int(seed), rig.dim
@@ -260,8 +259,7 @@ class Crowd:
         if method not in METHODS:
             raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
         max_iterations = _positive_int(max_iterations, "max_iterations", MAX_ITERATIONS)
-        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating, np.integer)) \
-                or not (math.isfinite(tolerance) and tolerance > 0):
+        if not is_number(tolerance) or not (math.isfinite(tolerance) and tolerance > 0):
             raise ValueError(f"tolerance: expected a positive number (got {tolerance!r})")
         N, E, dim = self.n, self.rig.n_effectors, self.dim
         if np.ndim(targets) == 2 and np.shape(targets) == (E, dim) and N == 1:
@@ -430,7 +428,8 @@ class Crowd:
         on_path.from_numpy(on_path_np)
         eff_lim = self.scratch("dls_eff_lim", ti.f32, dls_cfg["eff_lim"].shape)
         eff_lim.from_numpy(dls_cfg["eff_lim"])
-        if settings.lanes() == 1:  # CUDA: one character per GPU thread, each pose in local arrays
+        L = settings.lanes()
+        if L == 1:  # CUDA: one character per GPU thread, each pose in local arrays
             from crowd_ik.kernels import dls_free
 
             dls_free.dls_solve_free(
@@ -440,7 +439,7 @@ class Crowd:
                 self._stalled, rig.n_joints,
             )
             return
-        L = settings.lanes()  # one vector per value: 2L ran 12 % faster but took 31 s instead of ~15 s to compile
+        # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
         dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
             ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
             self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,

@@ -22,6 +22,7 @@ from functools import cached_property
 
 import numpy as np
 
+from crowd_ik.checks import is_integer, is_number
 from crowd_ik.solvers.limits import limit_pseudo_angles
 
 # Joint kinds and their DOF counts; the DOF count doubles as the kind code the kernels read.
@@ -78,7 +79,7 @@ def _vec3(value, what: str, limit: float | None = None) -> tuple[float, float, f
 
 def _index(value, what: str) -> int:
     """An integer index (Python or numpy integer; not a bool, a float or a string)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    if not is_integer(value):
         raise ValueError(f"{what}: expected an integer index (got {value!r})")
     return int(value)
 
@@ -147,8 +148,7 @@ class Rig:
             joint = _index(e.joint, f"effector {e.name!r}: joint")
             if not (0 <= joint < len(joints)):
                 raise ValueError(f"effector {e.name!r}: joint index out of range (got {e.joint})")
-            if isinstance(e.weight, bool) or not isinstance(e.weight, (int, float, np.integer, np.floating)) \
-                    or not (math.isfinite(e.weight) and e.weight >= 0):
+            if not is_number(e.weight) or not (math.isfinite(e.weight) and e.weight >= 0):
                 raise ValueError(f"effector {e.name!r}: weight must be a number >= 0 (got {e.weight!r})")
             axis = e.axis
             if axis is not None:
@@ -168,10 +168,9 @@ class Rig:
         the first to the x axis). dim=3: ball joints, unlimited unless ``lo``/``hi`` (radians, per DOF
         of one joint, or a scalar) or ``cone`` (radians) are given.
         """
-        if isinstance(n_bones, bool) or not isinstance(n_bones, (int, np.integer)) or n_bones < 1:
+        if not is_integer(n_bones) or n_bones < 1:
             raise ValueError(f"n_bones: expected a positive integer (got {n_bones!r})")
-        if isinstance(bone_length, bool) or not isinstance(bone_length, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(bone_length) and 0 < bone_length <= MAX_EXTENT):
+        if not is_number(bone_length) or not (math.isfinite(bone_length) and 0 < bone_length <= MAX_EXTENT):
             raise ValueError(f"bone_length: expected a positive number up to {MAX_EXTENT:g} m (got {bone_length!r})")
         bone_length = float(bone_length)
         if dim not in (2, 3):
@@ -344,8 +343,7 @@ class Rig:
         )
         offset = out["offset"].astype(np.float32)
         length = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + offset[:, 2] * offset[:, 2])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            direction = np.where(length[:, None] > 0, offset / np.maximum(length, 1e-30)[:, None], 0.0)
+        direction = offset / np.maximum(length, 1e-30)[:, None]  # (the root's zero offset stays zero)
         out["bone"] = np.concatenate([direction, length[:, None]], axis=1).astype(np.float32)
         assert D == len(lo)
         return {k: np.ascontiguousarray(v) for k, v in out.items()}
