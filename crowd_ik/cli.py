@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--inputs", default=None, metavar="F.csv", help="replay recorded inputs headless")
     play.add_argument("--clip", default=None, metavar="F.npz", help="also save every character's root transforms and joint angles")
     play.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    play.add_argument("--hud-timings", action="store_true",
+                      help="show measured milliseconds in the HUD (frames then differ run to run)")
     _add_common_runtime(play)
     play.set_defaults(handler="crowd_ik.play:run")
 

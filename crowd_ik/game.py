@@ -96,7 +96,8 @@ SHARD_TINT = np.array([0.55, 0.62, 1.0], np.float32)  # multiplies the character
 BULLET_DRAW_RADIUS = 0.05  # m: bullets are drawn at least this big
 TRAIL_LENGTH = 2.0  # m
 HUD_EMA = 0.1  # smoothing of the HUD's millisecond figures
-HUD_TIMINGS = True  # default of World(hud_timings=None): show measured milliseconds in the HUD
+HUD_TIMINGS = False  # default of World(hud_timings=None): the HUD shows simulation values only, so
+# frames are a function of scene, seed and frame count (`play --hud-timings` adds the milliseconds)
 
 # Random streams (the first argument of the counter-based hash is seed + stream).
 _STREAM_LAYOUT, _STREAM_CHAR, _STREAM_FIRE, _STREAM_SHARD, _STREAM_SIDE = (1 << 20) * np.arange(1, 6)

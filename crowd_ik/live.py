@@ -540,7 +540,7 @@ def run(args) -> int:
         raise ValueError(no_display_message(args.scene))
     arch = runtime.init(arch=args.arch, threads=args.threads)
     sys.stdout.flush()
-    world = PlayerWorld(scene)
+    world = PlayerWorld(scene, hud_timings=args.hud_timings)
     session = Session(world)
     try:
         result = play_window(session, (scene.video.width, scene.video.height))

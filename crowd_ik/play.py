@@ -193,13 +193,13 @@ def run(args) -> int:
     if log is not None:
         from crowd_ik.live import PlayerWorld, Session
 
-        world = PlayerWorld(scene)
+        world = PlayerWorld(scene, hud_timings=args.hud_timings)
         session = Session(world)
 
         def advance(k: int) -> None:  # video frame k shows the world after input row k
             session.advance(log.inputs[k])
     else:
-        world = World(scene)
+        world = World(scene, hud_timings=args.hud_timings)
 
         def advance(k: int) -> None:  # video frame k shows the world after k steps
             if k:

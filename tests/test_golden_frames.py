@@ -1,0 +1,41 @@
+"""The shipped scenes' frames, pinned: a refactor that changes one pixel of them fails here.
+
+Each case renders `crowd-ik play SCENE --size 160x96 --frames 60 --threads 1` to PNG frames (lossless,
+so the decoded pixels are the rendered ones) and compares the SHA-256 of all frames' pixels with the
+recorded value. A commit that changes the frames on purpose records the new hash and says why.
+"""
+
+import hashlib
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+GOLDEN = {
+    "duel": "ee92881c0fcbd822c5ac4252c23bb59c3efe673a7f32450e58eb6d2a5add5293",
+    "arena": "4831e78f4a1011c68a3c10182ee5e614e9bc9d60643c3c389fd256d4561cd618",
+}
+
+
+def frames_hash(folder: Path) -> str:
+    digest = hashlib.sha256()
+    files = sorted(folder.glob("frame_*.png"))
+    assert len(files) == 60
+    for f in files:
+        digest.update(cv2.imread(str(f), cv2.IMREAD_UNCHANGED).tobytes())
+    return digest.hexdigest()
+
+
+@pytest.mark.parametrize("name", sorted(GOLDEN))
+def test_shipped_scene_frames_are_unchanged(tmp_path, name):
+    scene = [str(ROOT / "scenes" / f"{name}.toml")] if name != "arena" else []
+    out = tmp_path / "frames"
+    proc = subprocess.run([sys.executable, "-m", "crowd_ik", "play", *scene, "--size", "160x96",
+                           "--frames", "60", "--threads", "1", "-o", f"{out}/"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert frames_hash(out) == GOLDEN[name]
