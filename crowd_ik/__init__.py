@@ -21,7 +21,7 @@ _LAZY = {
     "two_bone": ("crowd_ik.analytic", "two_bone"),
     "load_scene": ("crowd_ik.scene", "load_scene"),
     "Scene": ("crowd_ik.scene", "Scene"),
-    "World": ("crowd_ik.game", "World"),
+    "World": ("crowd_ik.game.world", "World"),
     "planar": ("crowd_ik.planar", None),
 }
 

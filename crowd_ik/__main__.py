@@ -1,5 +1,5 @@
 """`python -m crowd_ik` runs the command line."""
 
-from crowd_ik.cli import main
+from crowd_ik.commands.cli import main
 
 raise SystemExit(main())

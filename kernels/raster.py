@@ -33,7 +33,7 @@ Why this shape (see also crowd_ik/render.py):
   so the rest of a persistent frame buffer keeps its background (a crowd seen from afar covers a
   sixth of the tiles).
 
-Camera, packed in a (16,) float32 array `cam` (see `crowd_ik.render.Camera.packed`):
+Camera, packed in a (16,) float32 array `cam` (see `crowd_ik.view.render.Camera.packed`):
 eye [0:3], right [3:6], up [6:9], forward [9:12] (orthonormal, world frame), focal length in
 pixels [12], principal point cx [13], cy [14], near plane depth [15]. Pixel (px, py) centres sit
 at integer coordinates, x right, y down; their ray is forward*focal + right*(px-cx) - up*(py-cy).

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from crowd_ik import bench
-from crowd_ik.cli import main
+from crowd_ik.bench import run as bench
+from crowd_ik.commands.cli import main
 
 TINY = ["bench", "--quick", "--chars", "50,200", "--rig", "chain16,humanoid", "--solver", "fabrik", "--repeats", "1",
         "--baseline-budget", "0.5", "--game-chars", "32"]

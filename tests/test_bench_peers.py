@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from crowd_ik import bench, bench_peers  # noqa: E402
+from crowd_ik.bench import peers as bench_peers, run as bench  # noqa: E402
 
 
 def _chain_start(n, J=17, bone=0.1):
@@ -58,7 +58,7 @@ def test_measure_fills_chain16_records_and_targets():
 
 
 def test_peers_flag_is_checked(capsys):
-    from crowd_ik.cli import main
+    from crowd_ik.commands.cli import main
 
     assert main(["bench", "--peers", "julia", "--quick"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from crowd_ik.cli import main
-from crowd_ik.clip import (bvh_from_clip, bvh_text, clip_joint_positions, euler_to_matrix, load_clip,
+from crowd_ik.commands.cli import main
+from crowd_ik.io.clip import (bvh_from_clip, bvh_text, clip_joint_positions, euler_to_matrix, load_clip,
                            matrix_to_euler, quat_to_matrix, record_clip)
 from crowd_ik.reference.quat import euler_xyz_to_quat
 from crowd_ik.rig import Rig
@@ -31,7 +31,7 @@ def _scene_file(folder, rig="humanoid"):
 
 def _reference_joints(path, frames):
     """Per video frame (as `play` renders them): characters (F, N, J, 3), shooters, player."""
-    from crowd_ik.game import World
+    from crowd_ik.game.world import World
     from crowd_ik.scene import load_scene
 
     world = World(load_scene(path))
@@ -103,8 +103,8 @@ def test_clip_holds_every_frame_and_its_angles_reproduce_its_joints(humanoid_run
 
 
 def test_a_downed_shooter_is_recorded_as_not_alive():
-    from crowd_ik.clip import ClipRecorder
-    from crowd_ik.game import World
+    from crowd_ik.io.clip import ClipRecorder
+    from crowd_ik.game.world import World
     from crowd_ik.scene import load_scene, scene_with
 
     scene = scene_with(load_scene(None), size=(96, 64), **{

@@ -118,8 +118,7 @@ def test_warm_started_frames_move_limbs_smoothly():
     flips. Before the two-bone step a leg or arm could swing 0.8 m in one frame; now no joint moves 0.5 m, and a
     character moves a joint more than 10 cm in under 1 % of its frames (an arm stretching as its target leaves
     reach)."""
-    from crowd_ik import bench
-
+    from crowd_ik.bench import run as bench
     n = 400
     wl = bench.game_workload(n)
     crowd = cik.Crowd(wl.rig, n=n, spacing=bench.SPACING)

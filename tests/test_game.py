@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from crowd_ik import game
-from crowd_ik.game import DT, World, ballistic_direction, cone_sample
+from crowd_ik.game import world as game
+from crowd_ik.game.world import DT, World, ballistic_direction, cone_sample
 from crowd_ik.scene import load_scene, scene_with, shipped_scenes
 
 SMALL = {"characters.count": 6, "shooters.count": 2, "bullets.pool_size": 256}
@@ -38,7 +38,11 @@ def test_world_steps_and_renders():
     assert s["render_ms"] > 0.0 and s["ik_ms"] > 0.0
     lines = world.hud_lines()
     assert lines[0].startswith("TIME x") and "hits" in lines[2] and "dodges" in lines[2]
-    assert lines[3].startswith("IK ") and " ms" in lines[3]
+    assert lines[3].startswith("IK ") and " ms" not in lines[3]  # timings only on request
+    timed = World(small_scene(frames=8), hud_timings=True)
+    timed.step()
+    timed.render()
+    assert " ms" in timed.hud_lines()[3]
 
 
 def test_time_scale_rises_when_the_player_walks_and_falls_when_it_stops():

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from crowd_ik import game
-from crowd_ik.game import Body, World
+from crowd_ik.game import world as game
+from crowd_ik.game.world import Body, World
 from crowd_ik.kernels import game_kernels as gk
 from crowd_ik.reference import game_kernels as ref
 from crowd_ik.rig import Rig

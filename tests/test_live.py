@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from xwindow import crowd_ik_window, xdo
 
-from crowd_ik import game
-from crowd_ik.cli import main
-from crowd_ik.live import (CHEST_HEIGHT, HEADER, PlayerInput, PlayerWorld, Session, aim_point, format_inputs,
+from crowd_ik.game import world as game
+from crowd_ik.commands.cli import main
+from crowd_ik.game.live import (CHEST_HEIGHT, HEADER, PlayerInput, PlayerWorld, Session, aim_point, format_inputs,
                            load_inputs, move_from_keys, scene_settings, shooter_chests, walk_toward, write_inputs)
-from crowd_ik.render import Camera
-from crowd_ik.video import read_frames
+from crowd_ik.view.render import Camera
+from crowd_ik.io.video import read_frames
 
 TINY = """
 seed = 3

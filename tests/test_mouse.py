@@ -14,9 +14,9 @@ import pytest
 from xwindow import crowd_ik_window, xdo
 
 from crowd_ik import planar
-from crowd_ik.cli import main
+from crowd_ik.commands.cli import main
 from crowd_ik.ease import load_keyframes
-from crowd_ik.mouse import (
+from crowd_ik.mouse.session import (
     LOST_TOL,
     ChainSession,
     Recorder,
@@ -27,8 +27,8 @@ from crowd_ik.mouse import (
     replay_path,
     rest_pose,
 )
-from crowd_ik.mouse_view import BONE, HumanoidSession, View, reachable_mask, sample_reachable, to_gui_image
-from crowd_ik.video import read_frames, read_video
+from crowd_ik.mouse.view import BONE, HumanoidSession, View, reachable_mask, sample_reachable, to_gui_image
+from crowd_ik.io.video import read_frames, read_video
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 SIZE = ["--size", "160x160"]

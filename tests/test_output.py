@@ -1,4 +1,4 @@
-"""crowd_ik.output: no-clobber checks and atomic writes through a hidden same-suffix temporary file."""
+"""crowd_ik.io.output: no-clobber checks and atomic writes through a hidden same-suffix temporary file."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import stat
 import numpy as np
 import pytest
 
-from crowd_ik.output import (
+from crowd_ik.io.output import (
     atomic_path,
     check_writable,
     check_writable_dir,

@@ -1,4 +1,4 @@
-"""`crowd-ik play` through crowd_ik.cli.main: videos, stills, stats, no clobbering, exit codes."""
+"""`crowd-ik play` through crowd_ik.commands.cli.main: videos, stills, stats, no clobbering, exit codes."""
 
 import json
 
@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from crowd_ik import game
-from crowd_ik.cli import main
-from crowd_ik.video import read_frames, read_video
+from crowd_ik.game import world as game
+from crowd_ik.commands.cli import main
+from crowd_ik.io.video import read_frames, read_video
 
 TINY = """
 seed = 3
@@ -72,7 +72,7 @@ def test_still_writes_one_png(tiny, tmp_path):
 
 
 def test_still_matches_the_same_frame_of_the_world(tiny, tmp_path, monkeypatch):
-    from crowd_ik.game import World
+    from crowd_ik.game.world import World
     from crowd_ik.scene import load_scene
 
     monkeypatch.setattr(game, "HUD_TIMINGS", False)
@@ -174,7 +174,7 @@ def test_cuda_without_a_gpu_is_bad_input_for_play(tiny, tmp_path):
     if runtime._probe_cuda_device():
         pytest.skip("this machine has a CUDA GPU")
     out = tmp_path / "x.mp4"
-    proc = subprocess.run([sys.executable, "-m", "crowd_ik.cli", "play", str(tiny), "--arch", "cuda", "--frames", "2",
+    proc = subprocess.run([sys.executable, "-m", "crowd_ik.commands.cli", "play", str(tiny), "--arch", "cuda", "--frames", "2",
                            "-o", str(out)], capture_output=True, text=True, timeout=300)
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("[Taichi]")]
     assert proc.returncode == 2, proc.stderr

@@ -1,5 +1,5 @@
 """Camera projection, the Taichi rasteriser against its NumPy twin, z-buffer occlusion, shadows,
-determinism, overlays and input checks of crowd_ik.render."""
+determinism, overlays and input checks of crowd_ik.view.render."""
 
 import subprocess
 import sys
@@ -10,7 +10,7 @@ import pytest
 
 from crowd_ik.kernels import raster as kr
 from crowd_ik.reference import raster as ref
-from crowd_ik.render import Camera, Renderer, decode_keys
+from crowd_ik.view.render import Camera, Renderer, decode_keys
 
 
 def _cam(w=64, h=48, pos=(0.0, 2.0, 6.0), look=(0.0, 0.8, 0.0), fov=50.0):

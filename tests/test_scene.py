@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from crowd_ik import cli
+from crowd_ik.commands import cli
 from crowd_ik.scene import (
     ALL_KEYS,
     MEMORY_LIMIT,
@@ -292,7 +292,7 @@ def test_a_closed_pipe_ends_the_listing_quietly():
     import subprocess
     import sys
 
-    proc = subprocess.run(f"{sys.executable} -m crowd_ik.cli scenes scenes/arena.toml | head -c 1",
+    proc = subprocess.run(f"{sys.executable} -m crowd_ik.commands.cli scenes scenes/arena.toml | head -c 1",
                           shell=True, capture_output=True, text=True, timeout=120,
                           cwd=str(__import__("pathlib").Path(__file__).resolve().parent.parent))
     assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr, proc.stderr

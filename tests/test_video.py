@@ -1,4 +1,4 @@
-"""crowd_ik.video: .mp4 / .webm / PNG-folder sinks round-trip, never clobber, and finalise on Ctrl-C."""
+"""crowd_ik.io.video: .mp4 / .webm / PNG-folder sinks round-trip, never clobber, and finalise on Ctrl-C."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from crowd_ik.video import FfmpegSink, PngFolderSink, ffmpeg_exe, open_sink, read_frames, read_video, write_png
+from crowd_ik.io.video import FfmpegSink, PngFolderSink, ffmpeg_exe, open_sink, read_frames, read_video, write_png
 
 W, H, N = 64, 48, 12
 
@@ -270,7 +270,7 @@ def test_real_ctrl_c_on_the_process_group_finalises_the_video(tmp_path):
 
     script = (
         "import sys, numpy as np\n"
-        "from crowd_ik.video import open_sink\n"
+        "from crowd_ik.io.video import open_sink\n"
         f"with open_sink(sys.argv[1], 24, ({W}, {H})) as sink:\n"
         "    i = 0\n"
         "    while True:\n"

@@ -7,7 +7,7 @@ over the few primitives of a test scene), in float64.
   conservative.
 - `splat_shadows`: the ground darkness buffer (max over primitives, quantised like the kernel).
 - `shade_frame`: the BGR frame from (ids, depth, shadow).
-`cam` is the (16,) packed camera of `crowd_ik.render.Camera.packed`.
+`cam` is the (16,) packed camera of `crowd_ik.view.render.Camera.packed`.
 """
 
 from __future__ import annotations

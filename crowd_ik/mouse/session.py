@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from crowd_ik import planar
-from crowd_ik.mouse_view import ChainPicture, View, draw_background, draw_chain_frame, reachable_mask, tips
+from crowd_ik.mouse.view import ChainPicture, View, draw_background, draw_chain_frame, reachable_mask, tips
 from crowd_ik.solvers.registry import (
     CCD, DLS, FABRIK, FOLLOW, METHODS as CROWD_METHODS, NEWTON, PLANAR_DEFAULT, PLANAR_METHODS,
 )
@@ -45,7 +45,7 @@ LOST_TOL = 0.02  # chain units: a tip farther than this from its target has lost
 FOLLOW_DRIFT = 0.1
 TRAIL_LENGTH = 40
 MAX_FRAMES = 1_000_000
-SCENES = Path(__file__).resolve().parent / "scenes"
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
 NO_DISPLAY = "mouse: no display; replay headless instead: crowd-ik mouse --path scenes/circle.csv -o circle.mp4"
 LEGEND = ["1 newton  2 dls  3 fabrik  4 ccd  5 follow   drag: move the target",
           "L limits  R reset  C record path  Esc quit"]
@@ -282,7 +282,7 @@ class Recorder:
         self.rows.append((time.monotonic() - self.start, float(xy[0]), float(xy[1])))
 
     def save(self) -> Path:
-        from crowd_ik.output import write_text
+        from crowd_ik.io.output import write_text
 
         text = "t,x,y\n" + "".join(f"{t:.4f},{x:.5f},{y:.5f}\n" for t, x, y in self.rows)
         for k in range(1, 100_000):
@@ -319,7 +319,7 @@ class Replay:
 def replay_path(csv, output, *, n_bones=DEFAULT_BONES, method=PLANAR_DEFAULT, limits=False, size=(720, 720), fps=None,
                 force=False) -> Replay:
     """Solve the chain toward each target of a path CSV and write one frame per target."""
-    from crowd_ik.video import open_sink
+    from crowd_ik.io.video import open_sink
 
     src = resolve_input(csv)
     t, xy = load_path(src)
@@ -349,7 +349,7 @@ def replay_keyframes(csv, output, *, n_bones=None, limits=False, size=(720, 720)
                      force=False) -> Replay:
     """Ease between the key poses of a keyframe CSV (crowd_ik.ease) and write every frame."""
     from crowd_ik.ease import interpolate_keyframes, load_keyframes
-    from crowd_ik.video import open_sink
+    from crowd_ik.io.video import open_sink
 
     src = resolve_input(csv)
     durations, poses = load_keyframes(src)
@@ -418,7 +418,7 @@ def live_chain(n_bones: int, method: str, limits: bool, size: tuple[int, int], r
     """The interactive window for the planar chain; returns 0 when closed (Esc or the window's X)."""
     import taichi as ti
 
-    from crowd_ik.mouse_view import to_gui_image
+    from crowd_ik.mouse.view import to_gui_image
 
     session = ChainSession(n_bones, method, limits)
     view = View(n_bones, *size)
@@ -478,8 +478,8 @@ def live_humanoid(method: str, size: tuple[int, int]) -> int:
     """The interactive window for the humanoid; returns 0 when closed."""
     import taichi as ti
 
-    from crowd_ik.mouse_view import to_gui_image
-    from crowd_ik.mouse_view import HumanoidSession
+    from crowd_ik.mouse.view import to_gui_image
+    from crowd_ik.mouse.view import HumanoidSession
 
     session = HumanoidSession(size, method)
     gui = ti.GUI("crowd-ik mouse (humanoid)", res=size)
@@ -515,7 +515,7 @@ def live_humanoid(method: str, size: tuple[int, int]) -> int:
 
 
 def _parse_size(text: str) -> tuple[int, int]:
-    from crowd_ik.video import check_size
+    from crowd_ik.io.video import check_size
 
     try:
         w, h = (int(v) for v in str(text).lower().split("x"))

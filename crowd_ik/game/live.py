@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crowd_ik.game import ARM_REACH, Walker, World
+from crowd_ik.game.world import ARM_REACH, Walker, World
 
 HEADER = ("frame", "move_x", "move_z", "aim_x", "aim_y", "aim_z", "fire")
 SETTINGS_TAG = "# crowd-ik play inputs:"
@@ -223,7 +223,7 @@ def format_inputs(log, settings: dict[str, str] | None = None) -> str:
 
 def write_inputs(path, log, settings: dict[str, str] | None = None, force: bool = False) -> Path:
     """Write the inputs CSV atomically; never clobbers without force."""
-    from crowd_ik.output import write_text
+    from crowd_ik.io.output import write_text
 
     return write_text(path, format_inputs(log, settings), force=force)
 
@@ -516,7 +516,7 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
 
 def display_available() -> bool:
     """True when $DISPLAY names an X server that accepts a connection."""
-    from crowd_ik.mouse import display_available as check
+    from crowd_ik.mouse.session import display_available as check
 
     return check()
 
@@ -524,8 +524,8 @@ def display_available() -> bool:
 def run(args) -> int:
     """`crowd-ik play SCENE --live [--record F.csv] [--stats F.json] [--size WxH] ...`."""
     from crowd_ik import runtime
-    from crowd_ik.output import check_writable, write_json
-    from crowd_ik.play import build_scene, summary
+    from crowd_ik.io.output import check_writable, write_json
+    from crowd_ik.commands.play import build_scene, summary
 
     scene = build_scene(args)
     if args.record is not None:

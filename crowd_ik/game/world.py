@@ -478,9 +478,9 @@ class World:
         if not isinstance(scene, Scene):
             raise ValueError(f"World: scene: expected a crowd_ik.Scene (got {type(scene).__name__})")
         runtime.ensure_init()
-        from crowd_ik.bullets import BulletPool
+        from crowd_ik.game.bullets import BulletPool
         from crowd_ik.crowd import Crowd
-        from crowd_ik.render import Camera
+        from crowd_ik.view.render import Camera
 
         self.scene = scene
         self.seed = scene.seed
@@ -694,7 +694,7 @@ class World:
         through the pool like the shooters' bullets; the player's bullets also hit the shooters
         (a shooter hit is down). Returns the pool slots spawned (0 or 1).
         """
-        from crowd_ik.live import SteeredWalker
+        from crowd_ik.game.live import SteeredWalker
 
         if not isinstance(self.walker, SteeredWalker):
             self.walker = SteeredWalker(self.walker)
@@ -1183,7 +1183,7 @@ class World:
     def renderer(self):
         """The Renderer (its buffers are allocated on first use, sized for the scene's maxima)."""
         if self._renderer is None:
-            from crowd_ik.render import Renderer
+            from crowd_ik.view.render import Renderer
 
             self._renderer = Renderer(self.camera, self.max_capsules, self.scene.bullets.pool_size)
         return self._renderer

@@ -11,7 +11,7 @@ vectorised step (its upper hemisphere goes to the capsule's end b, the lower one
 The file is written atomically and never clobbers an existing one without --force.
 
 `crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` writes character K's motion as
-BVH (crowd_ik.clip: metres, y up, one BVH frame per video frame). SCENE is simulated as `play`
+BVH (crowd_ik.io.clip: metres, y up, one BVH frame per video frame). SCENE is simulated as `play`
 would for N frames (default the scene's frame count), without rendering; SCENE may instead be a
 clip saved by `crowd-ik play ... --clip F.npz` (a live session replayed with --inputs, say), whose
 first N frames are then written.
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from crowd_ik import runtime
-from crowd_ik.output import atomic_path, check_writable
+from crowd_ik.io.output import atomic_path, check_writable
 from crowd_ik.scene import load_scene
 
 TEMPLATE_COUNT = (8, 8)  # template capsule resolution (trimesh count): 66 vertices a capsule
@@ -109,8 +109,8 @@ def write_glb(path, meshes: dict, force: bool = False) -> Path:
 
 def run_bvh(args) -> int:
     """`crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` (see the module docstring)."""
-    from crowd_ik.clip import bvh_from_clip, bvh_joints, load_clip, record_clip
-    from crowd_ik.output import write_text
+    from crowd_ik.io.clip import bvh_from_clip, bvh_joints, load_clip, record_clip
+    from crowd_ik.io.output import write_text
     from crowd_ik.scene import scene_with
 
     out = args.bvh
@@ -178,7 +178,7 @@ def run(args) -> int:
         raise ValueError(f"-o: the posed world is written as a .glb file (got {out!r})")
     check_writable(out, args.force)
     runtime.init(arch=args.arch, threads=args.threads)
-    from crowd_ik.game import World
+    from crowd_ik.game.world import World
 
     from tqdm import tqdm
 

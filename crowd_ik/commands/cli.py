@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--hud-timings", action="store_true",
                       help="show measured milliseconds in the HUD (frames then differ run to run)")
     _add_common_runtime(play)
-    play.set_defaults(handler="crowd_ik.play:run")
+    play.set_defaults(handler="crowd_ik.commands.play:run")
 
     mouse = sub.add_parser("mouse", help="single-character IK: drag the target with the mouse, or replay a path to video")
     mouse.add_argument("--bones", type=int, default=None, help="planar chain bones (default 4; with --keyframes, the file's angle count)")
@@ -72,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     mouse.add_argument("-o", "--output", default=None, help="OUT.mp4 | OUT.webm | DIR/")
     mouse.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_common_runtime(mouse)
-    mouse.set_defaults(handler="crowd_ik.mouse:run")
+    mouse.set_defaults(handler="crowd_ik.mouse.session:run")
 
     bench = sub.add_parser("bench", help="IK throughput against character count, solver and backend, beside a NumPy baseline")
     bench.add_argument("--chars", default=None, help="comma-separated character counts (default 100,1000,10000,100000)")
@@ -93,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="also time compiled peers on chain16 FABRIK/DLS (numba: pip install -e '.[peers]')")
     bench.add_argument("--quick", action="store_true", help="small defaults for a smoke test (explicit flags win)")
     bench.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    bench.set_defaults(handler="crowd_ik.bench:run")
+    bench.set_defaults(handler="crowd_ik.bench.run:run")
 
     export = sub.add_parser("export", help="export a posed world (.glb) or a character's motion (.bvh)")
     export.add_argument("scene", nargs="?", default=None, help="scene TOML (default: the built-in arena)")
@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--frames", type=int, default=None, help="frames of motion for --bvh")
     export.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_common_runtime(export)
-    export.set_defaults(handler="crowd_ik.export:run")
+    export.set_defaults(handler="crowd_ik.commands.export:run")
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes, or check one and print its effective values")
     scenes.add_argument("file", nargs="?", default=None, help="scene TOML to check")

@@ -2,7 +2,7 @@
 
 Frames are (H, W, 3) uint8 BGR arrays, row 0 at the top (DESIGN.md, "Rendering"). A sink writes
 to a hidden temporary name next to its output and renames it into place when closed, never
-clobbering an existing output without `force` (crowd_ik.output). Used as a context manager a
+clobbering an existing output without `force` (crowd_ik.io.output). Used as a context manager a
 sink is finalised on normal exit and on Ctrl-C (a shorter but playable video, DESIGN.md
 "Command line"), and discarded on any other exception:
 
@@ -36,7 +36,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from crowd_ik.output import (
+from crowd_ik.io.output import (
     check_writable,
     check_writable_dir,
     is_dir_target,

@@ -209,7 +209,7 @@ def format_table(records: list[dict]) -> str:
     widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
     fmt = lambda row: "  ".join(str(c).ljust(w) if i < 2 else str(c).rjust(w)  # noqa: E731
                                 for i, (c, w) in enumerate(zip(row, widths)))
-    return "\n".join(["chain16 against numba peers (one chain per thread, prange; crowd_ik/bench_peers.py):",
+    return "\n".join(["chain16 against numba peers (one chain per thread, prange; crowd_ik/bench/peers.py):",
                       fmt(head), fmt(["-" * w for w in widths]), *map(fmt, body)])
 
 

@@ -1,7 +1,7 @@
 """`crowd-ik bench`: IK throughput against character count, solver and backend, beside a NumPy baseline.
 
 The parent process (:func:`run`) checks the options and every output path first, then runs one child
-process per arch (``python -m crowd_ik.bench --child SPEC.json RESULT.json``: Taichi is initialised
+process per arch (``python -m crowd_ik.bench.run --child SPEC.json RESULT.json``: Taichi is initialised
 once per process, so a CPU and a CUDA run cannot share one), times the vectorised NumPy twins of
 ``crowd_ik/reference/`` on the same workloads, prints a table, and writes ``--json`` / ``--plot``.
 
@@ -27,11 +27,11 @@ offset while the feet stay planted, each solved with FABRIK warm-started
 from the previous frame (at most 4 iterations), plus the bullet step of a full 4096-bullet pool
 against the crowd's limb capsules; the frame time is compared with one 60 Hz frame. Every character's
 targets move every frame there: the worst case. The full run also times the game as played
-(``game_scene``): the shipped stress_10k scene (10,000 humanoids, 16 shooters) in crowd_ik.game.World,
+(``game_scene``): the shipped stress_10k scene (10,000 humanoids, 16 shooters) in crowd_ik.game.world.World,
 FABRIK capped at 4 iterations, per 60 Hz world step the characters' IK and the bullets' step, after
 the first bullets have reached the crowd; there only the threatened characters move.
 
-Exit codes (as crowd_ik.cli): 2 for bad options, an existing output without --force, an unreadable
+Exit codes (as crowd_ik.commands.cli): 2 for bad options, an existing output without --force, an unreadable
 --compare file, and for ``--arch cuda`` on a machine without a CUDA GPU (refused before anything
 runs, as bad input for this machine); 1 when a child process fails.
 """
@@ -57,7 +57,7 @@ from crowd_ik.solvers.registry import DLS, FABRIK, METHODS
 RIGS = ("chain16", "humanoid")
 SOLVERS = METHODS
 ARCHES = ("cpu", "cuda")
-PEERS = ("numba",)  # compiled peers the bench can time beside crowd_ik (crowd_ik/bench_peers.py)
+PEERS = ("numba",)  # compiled peers the bench can time beside crowd_ik (crowd_ik/bench/peers.py)
 DEFAULT_CHARS = (100, 1000, 10000, 100000)
 CUDA_EXTRA_CHARS = 1_000_000  # added to chain16 on a CUDA arch when --chars is not given
 SEED = 20240601
@@ -163,8 +163,7 @@ def resolve_options(args) -> Options:
                              f"(limit {MEMORY_LIMIT / 2**30:.0f} GiB)")
     peers = _choices(args.peers, "--peers", PEERS, ()) if getattr(args, "peers", None) is not None else ()
     if peers:
-        from crowd_ik import bench_peers
-
+        from crowd_ik.bench import peers as bench_peers
         if not bench_peers.available():
             raise ValueError("--peers: numba is not installed (pip install -e '.[peers]')")
     return Options(chars, args.chars is not None, solvers, rigs, arches, threads, repeats, float(budget),
@@ -405,7 +404,7 @@ def game_workload(n: int) -> Workload:
 
 def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     """The game workload: a cold solve, then warm-started 4-iteration FABRIK frames plus the bullet step."""
-    from crowd_ik.bullets import BulletPool
+    from crowd_ik.game.bullets import BulletPool
     from crowd_ik.crowd import Crowd, Status
 
     wl = game_workload(n)
@@ -427,7 +426,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         arr.from_numpy(np.ascontiguousarray(value))
         return arr
 
-    # as crowd_ik.game.World does it: capsules, host joints and per-character boxes in one launch, the
+    # as crowd_ik.game.world.World does it: capsules, host joints and per-character boxes in one launch, the
     # capsules left in ndarrays for the pool, which skips characters no bullet can reach
     bone_parent = ndarray(rig.arrays["parent"][1:].astype(np.int32), ti.i32)
     bone_radius = ndarray(rig.arrays["radius"][1:].astype(np.float32), ti.f32)
@@ -502,7 +501,7 @@ def game_scene(steps: int, name: str = GAME_SCENE, warmup: int = GAME_SCENE_WARM
     """The shipped `name` scene (stress_10k: 10,000 humanoids) as the game plays it, FABRIK capped at 4 iterations:
     after `warmup` world steps, per 60 Hz world step (World.last_step_ms) the characters' IK (dodge targets,
     solve, limb capsules) and the bullets' step with its hits; only threatened characters move."""
-    from crowd_ik.game import World
+    from crowd_ik.game.world import World
     from crowd_ik.scene import load_scene, scene_with
 
     scene = scene_with(load_scene(name), **{"solver.method": FABRIK, "solver.iterations": 4})
@@ -593,13 +592,13 @@ def child_main(spec_path: str, result_path: str) -> int:
 
 
 def run_child(arch: str, cells: list, opts: Options) -> dict:
-    """Run one arch in a child process (`python -m crowd_ik.bench --child`) and return its result."""
+    """Run one arch in a child process (`python -m crowd_ik.bench.run --child`) and return its result."""
     with tempfile.TemporaryDirectory(prefix="crowd-ik-bench-") as tmp:
         spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
         spec.write_text(json.dumps(dict(arch=arch, threads=opts.threads, cells=cells, repeats=opts.repeats,
                                         game_chars=opts.game_chars, game_frames=opts.game_frames,
                                         scene_steps=opts.scene_steps)))
-        proc = subprocess.run([sys.executable, "-m", "crowd_ik.bench", "--child", str(spec), str(result)])
+        proc = subprocess.run([sys.executable, "-m", "crowd_ik.bench.run", "--child", str(spec), str(result)])
         if proc.returncode == 130 or proc.returncode == -2:
             raise KeyboardInterrupt
         if proc.returncode != 0 or not result.is_file():
@@ -737,7 +736,7 @@ def command_line(opts: Options, arches: tuple[str, ...]) -> str:
 
 def _source_state() -> dict | None:
     """The git commit of the code measured, and the files of the package that differ from it (None outside git)."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
         dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "kernels", "crowd_ik"],
@@ -962,7 +961,7 @@ def run(args) -> int:
     """`crowd-ik bench`: see the module docstring."""
     from tqdm import tqdm
 
-    from crowd_ik.output import atomic_path, check_writable, write_json
+    from crowd_ik.io.output import atomic_path, check_writable, write_json
 
     opts = resolve_options(args)
     json_path = check_writable(args.json, args.force) if args.json else None
@@ -998,8 +997,7 @@ def run(args) -> int:
 
     peer_targets = []
     if opts.peers:
-        from crowd_ik import bench_peers
-
+        from crowd_ik.bench import peers as bench_peers
         print("bench numba: timing the peers on the chain16 workloads", file=sys.stderr)
         bench_peers.measure(records, make_workload, opts.repeats, opts.threads)
         peer_targets = bench_peers.targets(records, _isa())
@@ -1011,8 +1009,7 @@ def run(args) -> int:
 
     print(format_table(records))
     if opts.peers:
-        from crowd_ik import bench_peers
-
+        from crowd_ik.bench import peers as bench_peers
         print(bench_peers.format_table(records))
     for c in children:
         print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({_isa()})")
@@ -1029,7 +1026,7 @@ def run(args) -> int:
     if json_path is not None:
         write_json(json_path, result, force=args.force)
     if plot_path is not None:
-        from crowd_ik.bench_chart import draw
+        from crowd_ik.bench.chart import draw
 
         with atomic_path(plot_path, force=args.force) as tmp:
             draw(result, tmp)
@@ -1042,7 +1039,7 @@ def _main(argv: list[str]) -> int:
             return child_main(argv[1], argv[2])
         except KeyboardInterrupt:
             return 130
-    print("usage: python -m crowd_ik.bench --child SPEC.json RESULT.json (use `crowd-ik bench`)", file=sys.stderr)
+    print("usage: python -m crowd_ik.bench.run --child SPEC.json RESULT.json (use `crowd-ik bench`)", file=sys.stderr)
     return 2
 
 

@@ -6,10 +6,10 @@ Order of work: check the arguments and that every output may be written (no clob
 frame by frame into the sink. Ctrl-C finalises the frames written so far as a shorter, playable
 video (the sink's context manager; a --clip keeps those frames too) and the CLI exits with 130.
 
---live plays in a window (crowd_ik.live; --record F.csv saves the inputs); --inputs F.csv replays
+--live plays in a window (crowd_ik.game.live; --record F.csv saves the inputs); --inputs F.csv replays
 such a recording headless, one video frame per row, with the recorded fps, size, seed and solver
 unless the command line gives others; --clip F.npz also saves every body's root transforms and
-joint angles per video frame (crowd_ik.clip).
+joint angles per video frame (crowd_ik.io.clip).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from crowd_ik import runtime
-from crowd_ik.output import check_writable, check_writable_dir, is_dir_target, write_json
+from crowd_ik.io.output import check_writable, check_writable_dir, is_dir_target, write_json
 from crowd_ik.scene import Scene, load_scene, parse_size, scene_with
 
 def check_modes(args) -> None:
@@ -77,7 +77,7 @@ def check_outputs(args, scene: Scene, out: str) -> None:
     elif is_dir_target(out):
         check_writable_dir(out, args.force)
     else:
-        from crowd_ik.video import VIDEO_SUFFIXES
+        from crowd_ik.io.video import VIDEO_SUFFIXES
 
         suffix = Path(out).suffix.lower()
         if suffix == ".png":
@@ -173,12 +173,11 @@ def run(args) -> int:
     t_start = time.perf_counter()
     check_modes(args)
     if args.live:
-        from crowd_ik import live
-
+        from crowd_ik.game import live
         return live.run(args)
     log = None
     if args.inputs is not None:
-        from crowd_ik.live import load_inputs
+        from crowd_ik.game.live import load_inputs
 
         log = load_inputs(args.inputs)
         scene = _inputs_scene(args, log)
@@ -187,11 +186,11 @@ def run(args) -> int:
     out = output_path(args, scene)
     check_outputs(args, scene, out)
     arch = runtime.init(arch=args.arch, threads=args.threads)
-    from crowd_ik.game import World
-    from crowd_ik.video import open_sink, write_png
+    from crowd_ik.game.world import World
+    from crowd_ik.io.video import open_sink, write_png
 
     if log is not None:
-        from crowd_ik.live import PlayerWorld, Session
+        from crowd_ik.game.live import PlayerWorld, Session
 
         world = PlayerWorld(scene, hud_timings=args.hud_timings)
         session = Session(world)
@@ -207,7 +206,7 @@ def run(args) -> int:
 
     clip = None
     if args.clip is not None:
-        from crowd_ik.clip import ClipRecorder
+        from crowd_ik.io.clip import ClipRecorder
 
         clip = ClipRecorder(world, (args.still + 1) if args.still is not None else scene.n_frames)
     try:

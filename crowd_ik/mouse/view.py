@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from crowd_ik.render import draw_hud
+from crowd_ik.view.render import draw_hud
 from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD
 
 # BGR colours
@@ -276,7 +276,7 @@ class HumanoidSession:
 
     def __init__(self, size=(720, 720), method: str = DEFAULT_METHOD, iterations: int = 20):
         from crowd_ik.crowd import Crowd
-        from crowd_ik.render import Camera
+        from crowd_ik.view.render import Camera
         from crowd_ik.rig import Rig
 
         self.size, self.method, self.iterations = tuple(size), method, iterations
@@ -334,7 +334,7 @@ class HumanoidSession:
 
     def render(self) -> np.ndarray:
         """The body, the effectors and the drag target as an (H, W, 3) uint8 BGR frame."""
-        from crowd_ik.render import Renderer
+        from crowd_ik.view.render import Renderer
 
         if self._renderer is None:
             self._renderer = Renderer(self.camera, max_capsules=self.rig.n_joints - 1)

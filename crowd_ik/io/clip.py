@@ -206,7 +206,7 @@ class ClipRecorder:
 
 
 def save_clip(path, arrays: dict, force: bool = False) -> Path:
-    from crowd_ik.output import atomic_path
+    from crowd_ik.io.output import atomic_path
 
     with atomic_path(path, force) as tmp:
         with open(tmp, "wb") as fh:
@@ -217,7 +217,7 @@ def save_clip(path, arrays: dict, force: bool = False) -> Path:
 def record_clip(scene, frames: int | None = None, characters=None, what: str = "--bvh") -> dict:
     """Play `scene` as `crowd-ik play` does (frame 0 before any step) for `frames` frames (default
     the scene's) without rendering, and return the clip's arrays."""
-    from crowd_ik.game import World
+    from crowd_ik.game.world import World
 
     n = scene.n_frames if frames is None else int(frames)
     world = World(scene)

@@ -1,0 +1,1 @@
+"""The benchmark: workloads, the compiled peers and the chart behind `crowd-ik bench`."""

@@ -1,0 +1,1 @@
+"""Command line: one module per subcommand; argument handling, running and reporting only."""

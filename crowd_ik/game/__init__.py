@@ -1,0 +1,1 @@
+"""The SUPERHOT-style game: the World and its parts."""

@@ -1,0 +1,1 @@
+"""`crowd-ik mouse`: one character posed with the mouse, and its drawing."""
