@@ -1,7 +1,7 @@
 """crowd_ik: batched inverse kinematics for crowds of characters, in Taichi.
 
 The public names are imported lazily, so `import crowd_ik` creates no Taichi state and stays fast;
-see DESIGN.md for the contract.
+see docs/DESIGN.md for the contract.
 """
 
 from __future__ import annotations
