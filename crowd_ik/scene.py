@@ -375,16 +375,17 @@ ALL_KEYS: tuple[str, ...] = ("seed",) + tuple(f"{s}.{k}" for s, cls in SECTIONS.
 class _Validator:
     """Builds a Scene from a raw dict; the first problem becomes one ValueError line."""
 
-    def __init__(self, source: str, overridden: dict[str, str] | None = None):
+    def __init__(self, source: str, overridden: dict[str, str] | None = None, prefix: str = ""):
         self.source = source
         self.overridden = overridden or {}
+        self.prefix = prefix  # written before every key in messages ("overrides." for a JOBS file's table)
 
     def error(self, key: str, problem: str, value: Any = _Bad._SAME, involved: tuple[str, ...] = ()) -> ValueError:
         keys = involved or (key.split("[")[0],)
         names = list(dict.fromkeys(self.overridden[k] for k in keys if k in self.overridden))
         label = self.source if not names else f"{self.source} with override {', '.join(names)}"
         got = "" if value is _Bad._SAME else f" (got {_show(value)})"
-        return ValueError(f"{label}: {key}: {problem}{got}")
+        return ValueError(f"{label}: {self.prefix}{key}: {problem}{got}")
 
     def unknown(self, key: str, value: Any, known: list[str], prefix: str) -> ValueError:
         close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
@@ -632,6 +633,49 @@ def scene_with(scene: Scene, **overrides: Any) -> Scene:
         raw["video"].pop("frames", None)
     source = str(scene.path) if scene.path is not None else DEFAULT_NAME
     return _Validator(source, overridden).build(raw, scene.path)
+
+
+def check_table(table: Any, source: str, prefix: str = "") -> dict:
+    """Check a raw table of scene keys on its own (every key known, every value valid) and return it.
+
+    For tables that carry scene keys inside another file, such as a JOBS file's [overrides]: errors read
+    like a scene's, `SOURCE: PREFIXsection.key: problem (got VALUE)`. Cross-key rules (a pool at least
+    as large as the shooters, ...) need the whole scene: apply_table checks them.
+    """
+    check = _Validator(source, prefix=prefix)
+    if not isinstance(table, dict):
+        raise ValueError(f"{source}: {prefix.rstrip('.')}: must be a table of scene keys (got {_show(table)})")
+    for name, value in table.items():
+        if name == "seed":
+            check.value("seed", _SEED_SPEC, value)
+        elif name in SECTIONS:
+            check.section(name, value)
+        else:
+            raise check.unknown(name, value, ["seed", *SECTIONS], "")
+    return table
+
+
+def apply_table(scene: Scene, table: dict, source: str) -> Scene:
+    """`scene` with the keys of a checked raw table (check_table) replaced, validated like a file.
+
+    A cross-key problem names the scene and where the keys came from, e.g. `duel.toml with override
+    bullets.pool_size=1 from jobs.toml: bullets.pool_size: must be at least shooters.count (4), ...`.
+    `video.seconds` without `video.frames` clears the scene's frames, as in scene_with.
+    """
+    raw = scene.to_dict()
+    overridden: dict[str, str] = {}
+    for name, value in table.items():
+        if name == "seed":
+            raw["seed"] = value
+            overridden["seed"] = f"seed={_show(value)} from {source}"
+            continue
+        for key, sub in value.items():
+            raw[name][key] = _plain(sub)
+            overridden[f"{name}.{key}"] = f"{name}.{key}={_show(sub)} from {source}"
+    if "video.seconds" in overridden and "video.frames" not in overridden:
+        raw["video"].pop("frames", None)
+    label = str(scene.path) if scene.path is not None else DEFAULT_NAME
+    return _Validator(label, overridden).build(raw, scene.path)
 
 
 # --------------------------------------------------------------------------------------------
