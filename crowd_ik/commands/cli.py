@@ -2,20 +2,56 @@
 
 Each subcommand's work lives in its own module (play.py, mouse.py, bench.py, export.py, scene.py);
 this file only declares the arguments and maps errors to exit codes:
-0 done; 1 failure at run time; 2 bad input or an existing output without --force; 130 interrupted.
+0 done; 1 failure at run time (an OS error such as a full disk is one line naming the file); 2 bad
+input or an existing output without --force; 130 interrupted by Ctrl-C, 143 by SIGTERM (handled like
+Ctrl-C: the shorter video is finalised and the encoder waited for).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
 
 from crowd_ik import __version__
 from crowd_ik.solvers.registry import METHODS, PLANAR_DEFAULT, PLANAR_METHODS
 
-EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, docker stop, CI) raised as an interrupt, so that every `except KeyboardInterrupt`
+    and sink finalises the work so far as Ctrl-C does; main() then returns 143."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Raise Terminated on the first SIGTERM while the command runs (a second one is ignored, so that it
+    cannot cut the finalisation short); the previous handler is restored afterwards."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _os_error_line(exc: OSError) -> str:
+    """`FILE: strerror` for an OS error with a file name, else its text."""
+    if exc.errno is not None and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return str(exc)
 
 
 class UsageError(ValueError):
@@ -120,8 +156,12 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     module, func = args.handler.split(":")
     try:
-        handler = getattr(importlib.import_module(module), func)
-        return int(handler(args) or EXIT_OK)
+        with _sigterm_as_interrupt():
+            handler = getattr(importlib.import_module(module), func)
+            return int(handler(args) or EXIT_OK)
+    except Terminated:
+        print("crowd-ik: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print("crowd-ik: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
@@ -132,9 +172,15 @@ def main(argv: list[str] | None = None) -> int:
     except FileExistsError as exc:
         print(f"crowd-ik: {exc} (use --force to overwrite)", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except (ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError) as exc:
+        print(f"crowd-ik: {_os_error_line(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ValueError as exc:
         print(f"crowd-ik: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as exc:  # no space left, permission denied, read-only file system: one line, not a traceback
+        print(f"crowd-ik: error: {_os_error_line(exc)}", file=sys.stderr)
+        return EXIT_FAILURE
     except RuntimeError as exc:
         print(f"crowd-ik: error: {exc}", file=sys.stderr)
         return EXIT_FAILURE

@@ -34,6 +34,9 @@ __all__ = [
     "write_text",
     "write_json",
     "is_dir_target",
+    "make_parents",
+    "remove_folders",
+    "named_os_error",
 ]
 
 
@@ -147,25 +150,69 @@ def publish(tmp: Path, final: Path, force: bool) -> None:
     os.unlink(tmp)
 
 
+def make_parents(folder: Path) -> list[Path]:
+    """`mkdir -p folder`; return the folders this created, outermost first (for remove_folders)."""
+    missing = []
+    p = Path(folder)
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+    except BaseException:
+        remove_folders(missing[::-1])
+        raise
+    return missing[::-1]
+
+
+def remove_folders(created: list[Path]) -> None:
+    """Remove the folders make_parents created, innermost first, where still empty: a failed or
+    interrupted writer leaves no folder behind."""
+    for folder in reversed(created):
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+
+
+def named_os_error(exc: OSError, final: Path) -> OSError:
+    """The same OS error (errno, strerror) naming `final`, the output the user asked for, rather than
+    a temporary name or none; an OSError without an errno (a message of ours) is returned as it is.
+    (OSError(errno, ...) is of the errno's subclass: PermissionError, FileExistsError, ...)"""
+    if exc.errno is None:
+        return exc
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(final))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     """Yield a temporary path next to `path` (hidden, unique, same suffix); publish it on success.
 
     Missing parent folders are created. On any exception - KeyboardInterrupt included - the
-    temporary file is deleted, `path` is left as it was, and the exception propagates. The writer
-    may replace the temporary file (e.g. an encoder that recreates it) but must leave it a file.
+    temporary file is deleted, so are the parent folders this created, `path` is left as it was, and
+    the exception propagates; an OSError (no space left, permission denied) is raised again naming
+    `path`, with its errno and strerror. The writer may replace the temporary file (e.g. an encoder
+    that recreates it) but must leave it a file.
     """
     final = check_writable(path, force)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = make_temp_path(final)
+    try:
+        created = make_parents(final.parent)
+    except OSError as exc:
+        raise named_os_error(exc, final) from None
+    try:
+        tmp = make_temp_path(final)
+    except OSError as exc:
+        remove_folders(created)
+        raise named_os_error(exc, final) from None
     try:
         yield tmp
         if not tmp.is_file():
             raise RuntimeError(f"{final}: the writer left no file at {tmp.name}")
         publish(tmp, final, force)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        remove_folders(created)
+        if isinstance(exc, OSError):
+            raise named_os_error(exc, final) from None
         raise
 
 

@@ -20,6 +20,7 @@ sink is finalised on normal exit and on Ctrl-C (a shorter but playable video, DE
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
 import math
 import os
@@ -28,7 +29,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import warnings
 import weakref
 from fractions import Fraction
 from pathlib import Path
@@ -40,8 +40,11 @@ from crowd_ik.io.output import (
     check_writable,
     check_writable_dir,
     is_dir_target,
+    make_parents,
     make_temp_path,
+    named_os_error,
     publish,
+    remove_folders,
     write_bytes,
 )
 
@@ -119,6 +122,47 @@ def _check_fps(fps) -> float:
     return value
 
 
+# OS errors a failing encoder names in its log ("No space left on device"), reported as that error.
+_OS_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO)
+_FULL_BYTES = 2**20  # a file system with less than this free is taken to be full
+
+
+def _one_line(err: BaseException) -> str:
+    if isinstance(err, OSError) and err.errno is not None and err.strerror and err.filename is not None:
+        return err.strerror
+    return " | ".join(str(err).splitlines())
+
+
+def _make_output(sink: Sink, folder: bool = False) -> Path:
+    """Make the sink's parent folders (remembered for removal) and its temporary file or folder;
+    an OSError names the output."""
+    try:
+        sink._created = make_parents(sink.path.parent)
+        return make_temp_path(sink.path, folder=folder)
+    except OSError as exc:
+        remove_folders(sink._created)
+        raise named_os_error(exc, sink.path) from None
+
+
+def _publish(tmp: Path, final: Path, force: bool) -> None:
+    try:
+        publish(tmp, final, force)
+    except OSError as exc:
+        raise named_os_error(exc, final) from None
+
+
+def _silent_failure(path: Path, what: str) -> OSError:
+    """The error of a writer that reports failure without a cause (OpenCV's VideoWriter): no space
+    left on device when the output's file system is full, else an I/O error."""
+    try:
+        st = os.statvfs(path.parent)
+        full = st.f_bavail * st.f_frsize < _FULL_BYTES
+    except OSError:
+        full = False
+    code = errno.ENOSPC if full else errno.EIO
+    return OSError(code, f"{os.strerror(code)} ({what})", str(path))
+
+
 def _remove(path: Path) -> None:
     """Delete a temporary file or folder if it is still there."""
     if path.is_dir() and not path.is_symlink():
@@ -142,6 +186,7 @@ class Sink:
         self.force = bool(force)
         self.frames_written = 0
         self._state = "open"
+        self._created: list[Path] = []  # parent folders made for the output, removed if it is discarded
         w, h = self.size
         self._shape = (h, w, 3)
 
@@ -173,15 +218,18 @@ class Sink:
         except BaseException:
             self._state = "aborted"
             self._discard()
+            remove_folders(self._created)
             raise
         self._state = "closed"
         return self.path
 
     def abort(self) -> None:
-        """Stop and delete the temporary output; an existing file at `path` is left as it was."""
+        """Stop and delete the temporary output (and the folders made for it); an existing file at
+        `path` is left as it was."""
         if self._state == "open":
             self._state = "aborted"
             self._discard()
+            remove_folders(self._created)
 
     def __enter__(self) -> Sink:
         return self
@@ -191,9 +239,10 @@ class Sink:
             self.close()
         elif issubclass(exc_type, KeyboardInterrupt) and self.frames_written:
             try:
-                self.close()  # Ctrl-C keeps the frames so far as a shorter, playable video
-            except Exception as err:  # the interrupt stays the reported cause
-                warnings.warn(f"{self.path}: could not finalise the interrupted output: {err}", stacklevel=2)
+                self.close()  # Ctrl-C (or SIGTERM) keeps the frames so far as a shorter, playable video
+            except Exception as err:  # the interrupt stays the reported cause; nothing is left behind
+                print(f"crowd-ik: {self.path}: could not finalise the interrupted output: {_one_line(err)}",
+                      file=sys.stderr)
         else:
             self.abort()
         return False
@@ -230,8 +279,7 @@ class FfmpegSink(Sink):
         if encoder not in _ffmpeg_encoders(exe):
             raise RuntimeError(f"{self.path}: the bundled ffmpeg ({exe}) has no {encoder} encoder")
         self.codec = codec
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = make_temp_path(self.path)
+        self._tmp = _make_output(self)
         w, h = self.size
         rate = Fraction(self.fps).limit_denominator(1001)
         cmd = [exe, "-hide_banner", "-loglevel", "error", "-nostats", "-y",
@@ -245,14 +293,20 @@ class FfmpegSink(Sink):
         except OSError as exc:
             self._log.close()
             _remove(self._tmp)
+            remove_folders(self._created)
             raise RuntimeError(f"{self.path}: cannot start ffmpeg: {exc}") from None
         self._fd = self._proc.stdin.fileno()
         self._pending = memoryview(b"")
         self._finalizer = weakref.finalize(self, _stop_process, self._proc, self._tmp)
 
-    def _ffmpeg_error(self, what: str) -> RuntimeError:
+    def _ffmpeg_error(self, what: str) -> Exception:
+        """ffmpeg's failure: an OSError naming the output when its log names an OS error (a full disk),
+        else a RuntimeError with the log's last lines."""
         self._log.seek(0)
         text = self._log.read().decode("utf-8", "replace").strip()
+        for code in _OS_ERRORS:
+            if os.strerror(code) in text:
+                return OSError(code, f"{os.strerror(code)} (ffmpeg {what})", str(self.path))
         tail = " | ".join(text.splitlines()[-5:]) or "no message"
         return RuntimeError(f"{self.path}: ffmpeg {what}: {tail}")
 
@@ -278,7 +332,7 @@ class FfmpegSink(Sink):
             raise self._ffmpeg_error(f"failed (exit code {code})")
         if self._tmp.stat().st_size == 0:
             raise self._ffmpeg_error("wrote an empty file")
-        publish(self._tmp, self.path, self.force)
+        _publish(self._tmp, self.path, self.force)
         self._finalizer.detach()
         self._log.close()
 
@@ -288,56 +342,107 @@ class FfmpegSink(Sink):
 
 
 @contextlib.contextmanager
-def _quiet_opencv_tag_warning():
-    """Hide OpenCV's harmless "tag 'VP80' is not supported ... webm" line (printed by C code on fd 2)."""
+def _captured_stderr(keep=lambda line: False):
+    """Capture what C code prints on fd 2 (OpenCV's and FFmpeg's own messages) meanwhile; the lines for
+    which `keep` is true are printed afterwards, the others dropped. Yields a list that holds the
+    captured lines once the block has ended."""
+    lines: list[str] = []
     try:
         sys.stderr.flush()
         saved = os.dup(2)
     except (OSError, ValueError):
-        yield
+        yield lines
         return
     with tempfile.TemporaryFile() as log:
         os.dup2(log.fileno(), 2)
         try:
-            yield
+            yield lines
         finally:
             os.dup2(saved, 2)
             os.close(saved)
             log.seek(0)
-            for line in log.read().decode("utf-8", "replace").splitlines():
-                if line.strip() and "is not supported with codec id" not in line:
+            lines += [ln for ln in log.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+            for line in lines:
+                if keep(line):
                     print(line, file=sys.stderr)
 
 
+def _quiet_opencv_tag_warning():
+    """Hide OpenCV's harmless "tag 'VP80' is not supported ... webm" line (printed by C code on fd 2)."""
+    return _captured_stderr(keep=lambda line: "is not supported with codec id" not in line)
+
+
+@contextlib.contextmanager
+def _opencv_silent():
+    """OpenCV's log level at silent meanwhile: a failing VideoWriter.write reports through its return
+    value (turned into our error), not through "Failed to write frame" warnings on stderr."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None:
+        yield
+        return
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        log.setLogLevel(level)
+
+
+def _frame_count(path: Path) -> int:
+    """Frames of a finished video by its container's duration (cheap: no decoding); -1 if unreadable."""
+    with _captured_stderr(), _opencv_silent():
+        cap = cv2.VideoCapture(str(path))
+        try:
+            n = cap.get(cv2.CAP_PROP_FRAME_COUNT) if cap.isOpened() else -1.0
+        finally:
+            cap.release()
+    return int(round(n)) if math.isfinite(n) and 0 <= n < 2**62 else -1
+
+
 class OpenCVSink(Sink):
-    """VP8 .webm through OpenCV's VideoWriter. Raises RuntimeError if the build cannot write it."""
+    """VP8 .webm through OpenCV's VideoWriter. Raises RuntimeError if the build cannot write it.
+
+    VideoWriter reports a failed write (a full disk) only through write()'s return value and a warning;
+    the sink turns a False into an OSError naming the file, and checks after release that the file
+    holds every frame written (its duration), so a truncated video is never published.
+    """
 
     FOURCC = "VP80"
 
     def __init__(self, path, fps, size, force=False):
         super().__init__(check_writable(path, force), fps, size, force)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = make_temp_path(self.path)
+        self._tmp = _make_output(self)
         with _quiet_opencv_tag_warning():
             self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*self.FOURCC), self.fps, self.size)
         if not self._writer.isOpened():
             self._writer.release()
             _remove(self._tmp)
+            remove_folders(self._created)
             raise RuntimeError(f"{self.path}: this OpenCV build cannot write {self.FOURCC} video")
         self._finalizer = weakref.finalize(self, _remove, self._tmp)
 
     def _write(self, frame: np.ndarray) -> None:
-        self._writer.write(frame)
+        with _opencv_silent():
+            ok = self._writer.write(frame)
+        if ok is False:  # (OpenCV before 4.9 returns None and cannot tell)
+            raise _silent_failure(self.path, f"OpenCV could not write frame {self.frames_written}")
 
     def _finish(self) -> None:
-        self._writer.release()
-        if self._tmp.stat().st_size == 0:
-            raise RuntimeError(f"{self.path}: OpenCV wrote an empty file")
-        publish(self._tmp, self.path, self.force)
+        with _captured_stderr(), _opencv_silent():
+            self._writer.release()
+        size = self._tmp.stat().st_size
+        if size == 0:
+            raise _silent_failure(self.path, "OpenCV wrote an empty file")
+        n = _frame_count(self._tmp)
+        if n != self.frames_written:
+            got = "an unreadable file" if n < 0 else f"{n} frames"
+            raise _silent_failure(self.path, f"OpenCV wrote {got} of {self.frames_written}")
+        _publish(self._tmp, self.path, self.force)
         self._finalizer.detach()
 
     def _discard(self) -> None:
-        self._writer.release()
+        with _captured_stderr(), _opencv_silent():
+            self._writer.release()
         self._finalizer()
 
 
@@ -346,19 +451,25 @@ class PngFolderSink(Sink):
 
     A new folder is renamed into place whole. Into an existing folder (empty, or any with `force`)
     the frames are moved one by one; with `force`, frame_NNNNN.png files left from an earlier,
-    longer run are deleted. Other files in the folder are never touched.
+    longer run are deleted. Other files in the folder are never touched. Each frame is encoded in
+    memory and written by Python, so a failed write is an OSError naming the folder and the cause.
     """
 
     def __init__(self, path, fps, size, force=False):
         super().__init__(check_writable_dir(path, force), fps, size, force)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = make_temp_path(self.path, folder=True)
+        self._tmp = _make_output(self, folder=True)
         self._finalizer = weakref.finalize(self, _remove, self._tmp)
 
     def _write(self, frame: np.ndarray) -> None:
         name = self._tmp / _FRAME_NAME.format(self.frames_written)
-        if not cv2.imwrite(str(name), frame):
-            raise RuntimeError(f"{self.path}: could not write {name.name}")
+        ok, buf = cv2.imencode(".png", frame)
+        if not ok:
+            raise RuntimeError(f"{self.path}: could not encode {name.name}")
+        try:
+            with open(name, "wb") as fh:
+                fh.write(buf.tobytes())
+        except OSError as exc:
+            raise named_os_error(exc, self.path / name.name) from None
 
     def _finish(self) -> None:
         if not self.path.exists():
@@ -370,7 +481,7 @@ class PngFolderSink(Sink):
                 pass  # the folder appeared meanwhile: merge into it below
         self.path = check_writable_dir(self.path, self.force)
         for src in sorted(self._tmp.iterdir()):
-            publish(src, self.path / src.name, self.force)
+            _publish(src, self.path / src.name, self.force)
         if self.force:
             for old in self.path.iterdir():
                 m = _FRAME_RE.fullmatch(old.name)
