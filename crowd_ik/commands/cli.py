@@ -87,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--record", default=None, metavar="F.csv", help="with --live: save the player's inputs")
     play.add_argument("--inputs", default=None, metavar="F.csv", help="replay recorded inputs headless")
     play.add_argument("--clip", default=None, metavar="F.npz", help="also save every character's root transforms and joint angles")
+    play.add_argument("--labels", default=None, metavar="F.jsonl",
+                      help="also write per-frame pose labels: camera, COCO keypoints with visibility, 3D joints, boxes")
     play.add_argument("--force", action="store_true", help="overwrite existing outputs")
     play.add_argument("--hud-timings", action="store_true",
                       help="show measured milliseconds in the HUD (frames then differ run to run)")
@@ -141,6 +143,20 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_common_runtime(export)
     export.set_defaults(handler="crowd_ik.commands.export:run")
+
+    many = sub.add_parser("render-many", help="render many videos (scenes x seeds x solvers) on Ray; resumable")
+    many.add_argument("jobs", metavar="JOBS", help="jobs TOML: scenes/seeds/solvers sweep or [[job]] tables, [overrides]")
+    many.add_argument("-o", "--output", required=True, metavar="DIR/", help="folder of the videos and manifest.jsonl")
+    many.add_argument("--address", default=None, metavar="auto|HOST:PORT",
+                      help="join a running Ray cluster (default: start a local Ray instance on this machine)")
+    many.add_argument("--workers", type=int, default=None,
+                      help="worker processes (default: the CPUs Ray offers / --threads, at most one per job)")
+    many.add_argument("--retries", type=int, default=1, help="extra attempts for a failed job (default 1)")
+    many.add_argument("--force", action="store_true", help="render complete jobs again and overwrite outputs")
+    many.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto", help="Taichi backend of the workers")
+    many.add_argument("--threads", type=int, default=None,
+                      help="CPU threads per worker (default: local cores / workers; 1 on a cluster)")
+    many.set_defaults(handler="crowd_ik.commands.render_many:run")
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes, or check one and print its effective values")
     scenes.add_argument("file", nargs="?", default=None, help="scene TOML to check")

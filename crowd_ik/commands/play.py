@@ -9,11 +9,13 @@ video (the sink's context manager; a --clip keeps those frames too) and the CLI 
 --live plays in a window (crowd_ik.game.live; --record F.csv saves the inputs); --inputs F.csv replays
 such a recording headless, one video frame per row, with the recorded fps, size, seed and solver
 unless the command line gives others; --clip F.npz also saves every body's root transforms and
-joint angles per video frame (crowd_ik.io.clip).
+joint angles per video frame (crowd_ik.io.clip); --labels F.jsonl writes every frame's pose labels
+(camera, COCO keypoints with z-buffer visibility, 3D joints, boxes; crowd_ik.io.labels).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -28,7 +30,7 @@ def check_modes(args) -> None:
     """Refuse flag combinations that mean nothing: --live plays a window (no video, no clip)."""
     if args.live:
         for flag, given in (("-o", args.output), ("--still", args.still), ("--inputs", args.inputs),
-                            ("--clip", args.clip)):
+                            ("--clip", args.clip), ("--labels", getattr(args, "labels", None))):
             if given is not None:
                 raise ValueError(f"{flag}: not with --live, which writes no video; record the inputs with "
                                  f"--record F.csv and render them with --inputs F.csv -o OUT.mp4")
@@ -98,6 +100,13 @@ def check_outputs(args, scene: Scene, out: str) -> None:
         if Path(args.clip).suffix.lower() != ".npz":
             raise ValueError(f"--clip: a clip is written as a .npz file (got {args.clip!r})")
         check_writable(args.clip, args.force)
+    if getattr(args, "labels", None) is not None:
+        from crowd_ik.io.labels import check_labels_path
+
+        check_labels_path(args.labels, args.force)
+        for flag, other in (("-o", out), ("--stats", args.stats), ("--clip", getattr(args, "clip", None))):
+            if other is not None and os.path.abspath(args.labels) == os.path.abspath(other):
+                raise ValueError(f"--labels: {args.labels} is also the {flag} output")
 
 
 def _progress(total: int, desc: str):
@@ -161,9 +170,14 @@ def run(args) -> int:
         from crowd_ik.io.clip import ClipRecorder
 
         clip = ClipRecorder(world, (args.still + 1) if args.still is not None else scene.n_frames)
+    labels = contextlib.nullcontext()
+    if args.labels is not None:
+        from crowd_ik.io.labels import LabelsWriter
+
+        labels = LabelsWriter(args.labels, force=args.force)
     try:
         if args.still is not None:
-            with _progress(args.still + 1, f"{scene.name} still") as bar:
+            with labels, _progress(args.still + 1, f"{scene.name} still") as bar:
                 for k in range(args.still + 1):
                     advance(k)
                     if clip is not None:
@@ -171,19 +185,23 @@ def run(args) -> int:
                     if k < args.still:
                         bar.update()
                 frame = world.render()
+                if args.labels is not None:
+                    labels.add(world, args.still)
                 bar.update()
-            write_png(out, frame, force=args.force)
+                write_png(out, frame, force=args.force)
             rendered = 1
         else:
             n = scene.n_frames
             rendered = 0
             with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
-                    _progress(n, scene.name) as bar:
+                    labels, _progress(n, scene.name) as bar:
                 for k in range(n):
                     advance(k)
                     if clip is not None:
                         clip.add(world)
                     sink.write(world.render())
+                    if args.labels is not None:
+                        labels.add(world, k)
                     rendered += 1
                     bar.update()
     except KeyboardInterrupt:
@@ -198,6 +216,8 @@ def run(args) -> int:
         info["player_shots"] = world.player_shots
     if clip is not None:
         info["clip"] = str(args.clip)
+    if args.labels is not None:
+        info["labels"] = str(args.labels)
     if args.stats is not None:
         write_json(args.stats, info, force=args.force)
     print(format_summary(info), flush=True)
@@ -205,6 +225,8 @@ def run(args) -> int:
         print(f"  inputs      {args.inputs} ({len(log)} rows, {world.player_shots} player shots)")
     if clip is not None:
         print(f"  clip        {args.clip} ({clip.count} frames)")
+    if args.labels is not None:
+        print(f"  labels      {args.labels} ({labels.count} frames)")
     if args.stats is not None:
         print(f"  stats       {args.stats}")
     return 0
