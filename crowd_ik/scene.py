@@ -32,8 +32,18 @@ MAX_ITERATIONS = 10_000
 MAX_WAYPOINTS = 100_000
 MAX_SEED = 2**31 - 1  # seeds reach kernels as i32 scalars
 MIN_SIZE, MAX_SIZE = 16, 7680
-MAX_FPS = 1000.0
+MIN_FPS, MAX_FPS = 1.0, 1000.0
 MEMORY_LIMIT = 8 * 2**30
+MAX_EXTENT = 1e4  # metres: |coordinates| and distances (the library's bound, crowd_ik.rig.MAX_EXTENT)
+MIN_CAMERA_DISTANCE = 1e-3  # metres between camera.position and camera.look_at
+MIN_CAMERA_TILT = 1e-3  # horizontal part of the unit viewing direction: below it the camera looks straight
+#                         down (or up) and "up" in the picture is undefined
+FLOAT32_MAX = 3.4028234663852886e38  # every number reaches the kernels as float32
+MAX_SPEED = 1e6  # m/s, the player's and the bullets' (a step's travel and its square stay well inside float32)
+MAX_SCALE = 1000.0  # characters.scale: a 1.75 km humanoid
+MIN_FIRE_RATE, MAX_FIRE_RATE = 1e-6, 1e6  # shots per second (1 / fire_rate is a float32 time)
+MIN_FOV_DEG = 0.01  # a narrower view's focal length in pixels overflows float32
+MAX_AIM_HEIGHT = 1e18  # metres above its target a shot may aim (the game's ballistic estimate; its float32 square stays finite)
 
 # Rough per-item footprints (host + device) used to refuse absurd scenes before allocating.
 # A humanoid (~20 joints, ~37 DOF, 5 effectors): positions, quaternions and angles with their
@@ -100,8 +110,12 @@ class _OptionalInt(_Int):
 
 
 class _Float:
-    def __init__(self, lo: float | None = None, hi: float | None = None, lo_open: bool = True, hi_open: bool = False):
-        self.lo, self.hi, self.lo_open, self.hi_open = lo, hi, lo_open, hi_open
+    """A finite number in float32 (|x| <= 3.4e38, what the kernels receive) within [lo, hi] (open or closed
+    ends; None = unbounded), `unit` for the message."""
+
+    def __init__(self, lo: float | None = None, hi: float | None = None, lo_open: bool = True, hi_open: bool = False,
+                 unit: str = ""):
+        self.lo, self.hi, self.lo_open, self.hi_open, self.unit = lo, hi, lo_open, hi_open, unit
 
     def _range(self) -> str:
         if self.hi is None:
@@ -109,8 +123,9 @@ class _Float:
                 return "must be a positive number" if self.lo_open else "must be zero or positive"
             return f"must be {'>' if self.lo_open else '>='} {_num(self.lo)}"
         if self.lo is None:
-            return f"must be {'<' if self.hi_open else '<='} {_num(self.hi)}"
-        return f"must be in {'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}{')' if self.hi_open else ']'}"
+            return f"must be {'<' if self.hi_open else '<='} {_num(self.hi)}{self.unit}"
+        return (f"must be in {'(' if self.lo_open else '['}{_num(self.lo)}, {_num(self.hi)}{')' if self.hi_open else ']'}"
+                f"{self.unit}")
 
     def parse(self, v: Any) -> float:
         if isinstance(v, bool):
@@ -123,6 +138,8 @@ class _Float:
             raise _Bad("must be a finite number") from None
         if not math.isfinite(x):
             raise _Bad("must be a finite number")
+        if abs(x) > FLOAT32_MAX:
+            raise _Bad("must be finite in float32 (|x| <= 3.4e38)")
         if self.lo is not None and (x <= self.lo if self.lo_open else x < self.lo):
             raise _Bad(self._range())
         if self.hi is not None and (x >= self.hi if self.hi_open else x > self.hi):
@@ -145,23 +162,25 @@ class _Choice:
         return v
 
 
-def _finite_numbers(v: Any, n: int) -> tuple[float, ...] | None:
-    """`v` as a tuple of n finite floats, or None when it is not a list of n numbers."""
+def _finite_numbers(v: Any, n: int, limit: float = MAX_EXTENT) -> tuple[float, ...] | None:
+    """`v` as a tuple of n floats within +-limit, or None when it is not a list of n such numbers."""
     if not isinstance(v, (list, tuple)) or len(v) != n or not all(_is_number(c) for c in v):
         return None
     try:
         out = tuple(float(c) for c in v)
     except OverflowError:
         return None
-    return out if all(math.isfinite(c) for c in out) else None
+    return out if all(math.isfinite(c) and abs(c) <= limit for c in out) else None
 
 
 class _Vec3:
+    """A world point [x, y, z], each within +-MAX_EXTENT metres."""
+
     def parse(self, v: Any) -> tuple[float, float, float]:
         out = _finite_numbers(v, 3)
         if out is None:
             if isinstance(v, (list, tuple)) and len(v) == 3 and all(_is_number(c) for c in v):
-                raise _Bad("must be 3 finite numbers [x, y, z]")
+                raise _Bad(f"must be 3 finite numbers [x, y, z] within +-{_num(MAX_EXTENT)} m")
             raise _Bad("must be a list of 3 numbers [x, y, z]")
         return out  # type: ignore[return-value]
 
@@ -176,7 +195,8 @@ class _Path:
         for i, p in enumerate(v):
             pair = _finite_numbers(p, 2)
             if pair is None:
-                raise _Bad("must be an [x, z] pair of finite numbers", suffix=f"[{i}]", value=p)
+                raise _Bad(f"must be an [x, z] pair of finite numbers within +-{_num(MAX_EXTENT)} m",
+                           suffix=f"[{i}]", value=p)
             out.append(pair)
         return tuple(out)
 
@@ -195,9 +215,9 @@ class Characters:
 
     count: int = _key(40, _Int(1, MAX_CHARACTERS), "number of characters")
     layout: str = _key("grid", _Choice("grid", "ring", "random"), "how the roots are placed")
-    spacing: float = _key(1.5, _Float(0), "distance between neighbouring roots, metres")
+    spacing: float = _key(1.5, _Float(0, MAX_EXTENT, unit=" m"), "distance between neighbouring roots, metres")
     rig: str = _key("humanoid", _Choice("humanoid", "chain"), "the skeleton every character uses")
-    scale: float = _key(1.0, _Float(0), "size factor on the rig (1 = a 1.75 m humanoid)")
+    scale: float = _key(1.0, _Float(0, MAX_SCALE), "size factor on the rig (1 = a 1.75 m humanoid)")
 
 
 @dataclass(frozen=True)
@@ -207,7 +227,7 @@ class Player:
     path: tuple[tuple[float, float], ...] = _key(
         ((0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0), (0.0, 0.0)), _Path(), "(x, z) waypoints, metres"
     )
-    speed: float = _key(1.5, _Float(0), "walking speed, metres per second")
+    speed: float = _key(1.5, _Float(0, MAX_SPEED, unit=" m/s"), "walking speed, metres per second")
 
 
 @dataclass(frozen=True)
@@ -216,8 +236,8 @@ class Shooters:
 
     count: int = _key(4, _Int(1, MAX_SHOOTERS), "number of shooters")
     placement: str = _key("ring", _Choice("ring", "line"), "ring around the crowd, or a line in front of it")
-    radius: float = _key(12.0, _Float(0), "ring radius or distance of the line from the centre, metres")
-    fire_rate: float = _key(1.0, _Float(0), "shots per second per shooter, world time")
+    radius: float = _key(12.0, _Float(0, MAX_EXTENT, unit=" m"), "ring radius or distance of the line from the centre, metres")
+    fire_rate: float = _key(1.0, _Float(MIN_FIRE_RATE, MAX_FIRE_RATE, lo_open=False), "shots per second per shooter, world time")
     spread_deg: float = _key(2.0, _Float(0, 90, lo_open=False, hi_open=True), "aim spread half-angle, degrees")
 
 
@@ -225,8 +245,8 @@ class Shooters:
 class Bullets:
     """Bullet physics and the fixed-size pool they live in."""
 
-    speed: float = _key(25.0, _Float(0), "muzzle speed, metres per second")
-    radius: float = _key(0.03, _Float(0), "collision radius, metres")
+    speed: float = _key(25.0, _Float(0, MAX_SPEED, unit=" m/s"), "muzzle speed, metres per second")
+    radius: float = _key(0.03, _Float(0, MAX_EXTENT, unit=" m"), "collision radius, metres")
     gravity: float = _key(9.81, _Float(0, lo_open=False), "downward acceleration, metres per second squared")
     drag: float = _key(0.0, _Float(0, lo_open=False), "linear drag coefficient, 1 per second")
     pool_size: int = _key(4096, _Int(1, MAX_POOL_SIZE), "bullet slots allocated once")
@@ -256,7 +276,7 @@ class Camera:
 
     position: tuple[float, float, float] = _key((0.0, 8.0, 16.0), _Vec3(), "eye position, metres")
     look_at: tuple[float, float, float] = _key((0.0, 1.0, 0.0), _Vec3(), "point at the centre of the frame, metres")
-    fov_deg: float = _key(50.0, _Float(0, 180, lo_open=True, hi_open=True), "vertical field of view, degrees")
+    fov_deg: float = _key(50.0, _Float(MIN_FOV_DEG, 180, lo_open=False, hi_open=True), "vertical field of view, degrees")
 
 
 @dataclass(frozen=True)
@@ -265,8 +285,8 @@ class Video:
 
     width: int = _key(1280, _Int(MIN_SIZE, MAX_SIZE, even=True, unit=" pixels"), "frame width, pixels")
     height: int = _key(720, _Int(MIN_SIZE, MAX_SIZE, even=True, unit=" pixels"), "frame height, pixels")
-    fps: float = _key(30.0, _Float(0, MAX_FPS), "frames per second")
-    seconds: float = _key(10.0, _Float(0), "video length, seconds")
+    fps: float = _key(30.0, _Float(MIN_FPS, MAX_FPS, lo_open=False), "frames per second")
+    seconds: float = _key(10.0, _Float(0, MAX_FRAMES / MIN_FPS, unit=" s"), "video length, seconds")
     frames: int | None = _key(None, _OptionalInt(1, MAX_FRAMES), "video length in frames (overrides seconds)")
 
 
@@ -435,9 +455,17 @@ class _Validator:
 
     def cross_check(self, scene: Scene) -> None:
         cam = scene.camera
-        if cam.position == cam.look_at:
-            raise self.error("camera.look_at", "must differ from camera.position", list(cam.look_at),
-                             involved=("camera.look_at", "camera.position"))
+        view = [a - b for a, b in zip(cam.look_at, cam.position)]
+        distance = math.sqrt(sum(c * c for c in view))
+        camera_keys = ("camera.look_at", "camera.position")
+        if distance < MIN_CAMERA_DISTANCE:
+            raise self.error("camera.look_at", f"must be at least {_num(MIN_CAMERA_DISTANCE * 1000)} mm from camera.position "
+                             f"{_show(list(cam.position))}", list(cam.look_at), involved=camera_keys)
+        if math.hypot(view[0], view[2]) < MIN_CAMERA_TILT * distance:
+            raise self.error("camera.look_at", f"is straight {'below' if view[1] < 0 else 'above'} camera.position "
+                             f"{_show(list(cam.position))}, so the picture has no up direction; move one of them "
+                             f"sideways (by at least {_num(MIN_CAMERA_TILT)} of their distance)", list(cam.look_at),
+                             involved=camera_keys)
         if scene.bullets.pool_size < scene.shooters.count:
             raise self.error("bullets.pool_size", f"must be at least shooters.count ({scene.shooters.count}), one slot per shooter",
                              scene.bullets.pool_size, involved=("bullets.pool_size", "shooters.count"))
@@ -459,6 +487,60 @@ class _Validator:
             detail = " + ".join(f"{k} {_gib(b)}" for k, b in parts.items())
             raise self.error(key, f"scene needs about {_gib(need['total'])} ({detail}), more than the {_gib(MEMORY_LIMIT)} limit",
                              shown, involved=("characters.count", "bullets.pool_size", "video.width", "video.height", "characters.rig"))
+        c = scene.characters
+        reach = crowd_extent(scene) + 2.0 * c.spacing
+        if reach > MAX_EXTENT:
+            raise self.error("characters.spacing", f"puts {c.count} characters ({c.layout}) up to {reach:.4g} m from the "
+                             f"centre, beyond {_num(MAX_EXTENT)} m", c.spacing,
+                             involved=("characters.spacing", "characters.count", "characters.layout"))
+        sh = scene.shooters
+        if sh.placement == "line" and sh.count - 1 > MAX_EXTENT:
+            raise self.error("shooters.count", f"puts a line of shooters 2 m apart up to {sh.count - 1} m from the centre, "
+                             f"beyond {_num(MAX_EXTENT)} m", sh.count, involved=("shooters.count", "shooters.placement"))
+        b = scene.bullets
+        shot = longest_shot(scene)
+        height = aim_height(shot, b.speed, b.gravity, b.drag)
+        if not height <= MAX_AIM_HEIGHT:
+            raise self.error("bullets.speed", f"cannot carry a shot {shot:.4g} m far under gravity {_num(b.gravity)} and drag "
+                             f"{_num(b.drag)}: it would aim {height:.3g} m above its target (at most {MAX_AIM_HEIGHT:g}); "
+                             f"raise bullets.speed or lower bullets.gravity, bullets.drag or shooters.radius", b.speed,
+                             involved=("bullets.speed", "bullets.gravity", "bullets.drag", "shooters.radius", "shooters.count",
+                                       "characters.count", "characters.spacing", "characters.scale", "player.path"))
+
+
+def crowd_extent(scene: Scene) -> float:
+    """Metres from the centre to the farthest character root along x or z (crowd_ik.game.world's layouts:
+    a centred square grid, jittered by up to a quarter spacing for "random", or a ring)."""
+    c = scene.characters
+    n, sp = c.count, c.spacing
+    if c.layout == "ring":
+        return max(sp * n / (2.0 * math.pi), sp)
+    cols = math.ceil(math.sqrt(n))
+    rows = math.ceil(n / cols)
+    half = 0.5 * (max(cols, rows) - 1) * sp
+    return half + (0.25 * sp if c.layout == "random" else 0.0)
+
+
+def longest_shot(scene: Scene) -> float:
+    """An upper bound on the horizontal distance of any shot, metres: a shooter at the far side of the
+    crowd, or the player anywhere on its path, to a shooter (plus a character's height)."""
+    sh = scene.shooters
+    farthest_shooter = sh.radius + (sh.count - 1 if sh.placement == "line" else 0.0)
+    farthest_target = max(crowd_extent(scene) * math.sqrt(2.0), max(math.hypot(x, z) for x, z in scene.player.path))
+    return farthest_shooter + farthest_target + 2.0 * scene.characters.scale
+
+
+def aim_height(distance: float, speed: float, gravity: float, drag: float) -> float:
+    """Metres above a target `distance` away that a shot aims, by the game's ballistic estimate
+    (crowd_ik.game.aim.ballistic_direction: four fixed-point steps on the flight time); large or inf when
+    the target is far beyond the bullets' range."""
+    t = distance / speed
+    height = 0.0
+    for _ in range(4):
+        t_eff = t * (1.0 + 0.5 * drag * speed * t)
+        height = 0.5 * gravity * t_eff * t_eff
+        t = math.hypot(distance, height) / speed
+    return height
 
 
 def _gib(n: int) -> str:
