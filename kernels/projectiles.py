@@ -3,7 +3,7 @@
 Arrays: P bullet slots, C limb capsules, N characters. Positions in metres, world frame (y up);
 velocities in m/s; times in seconds.
 
-Phases (one launch each; `crowd_ik.game.bullets.BulletPool` runs them in this order):
+Phases (one launch each; `crowd_ik.game.pool.BulletPool` runs them in this order):
   integrate_bullets                      semi-implicit Euler with gravity and quadratic drag
   mark_bullet_cells, reachable_owners,   broad phase: a uniform grid on (x, z) built with integer
   build_grid                             atomics only (count, exclusive prefix sum, scatter), in

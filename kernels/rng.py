@@ -7,7 +7,7 @@ applied three times, folding in one integer at a time:
 
 so a draw never depends on thread scheduling or on how many draws other threads made. `index` is
 the item (character, shooter, bullet slot) and `counter` the frame or draw number. The NumPy twin
-`crowd_ik.reference.rng` is bit-identical.
+`crowd_ik.geometry.rng` is bit-identical.
 """
 
 import taichi as ti

@@ -129,7 +129,7 @@ def test_chain16_workload_targets_fill_the_ball():
 
 
 def test_humanoid_workload_starts_in_limits_with_nearby_targets():
-    from crowd_ik.reference.fk import forward_kinematics
+    from crowd_ik.geometry.fk import forward_kinematics
 
     wl = bench.make_workload("humanoid", 500)
     lo, hi = wl.rig.angle_limits()

@@ -5,7 +5,7 @@ import pytest
 
 import crowd_ik as cik
 from crowd_ik.reference import ccd as ref_ccd
-from crowd_ik.reference.fk import rotations_to_angles
+from crowd_ik.geometry.fk import rotations_to_angles
 
 
 def ball_targets(n, dim, reach, rng, rmax=0.95):

@@ -9,7 +9,7 @@ import pytest
 from crowd_ik.commands.cli import main
 from crowd_ik.io.clip import (bvh_from_clip, bvh_text, clip_joint_positions, euler_to_matrix, load_clip,
                            matrix_to_euler, quat_to_matrix, record_clip)
-from crowd_ik.reference.quat import euler_xyz_to_quat
+from crowd_ik.geometry.quat import euler_xyz_to_quat
 from crowd_ik.rig import Rig
 
 TINY = """
@@ -40,8 +40,8 @@ def _reference_joints(path, frames):
         if k:
             world.step()
         out["characters"].append(world.joints())
-        out["shooters"].append(world.shooters.joint_positions())
-        out["player"].append(world.player.joint_positions())
+        out["shooters"].append(world.shooters.joints)
+        out["player"].append(world.player.crowd.joint_positions())
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -113,7 +113,7 @@ def test_a_downed_shooter_is_recorded_as_not_alive():
     world = World(scene, autofire=False)
     rec = ClipRecorder(world, 2)
     rec.add(world)
-    chest = world.shooters.joint_positions()[1, world.hbody.chest]
+    chest = world.shooters.joints[1, world.hbody.chest]
     world.set_player_input((0.0, 0.0), chest, fire=True)
     world.simulate(0.3)
     rec.add(world)
@@ -294,7 +294,7 @@ def test_bvh_of_a_chain_character_round_trips(tmp_path):
 def test_bvh_text_of_a_turned_posed_rig_matches_reference_fk():
     """Independent of the World: random poses of a rig with every joint kind (a fixed joint in the
     middle included), any yaw, through bvh_text and back."""
-    from crowd_ik.reference import fk as ref_fk
+    from crowd_ik.geometry import fk as ref_fk
     from crowd_ik.rig import Joint
 
     rig = Rig((

@@ -11,8 +11,8 @@ from crowd_ik.crowd import Status
 from crowd_ik.reference.dls import (
     balance_offset, balance_rows, balance_weights, dls_settings, dls_solve, qexp, qlog, swing_vector,
 )
-from crowd_ik.reference.fk import angles_to_rotations, forward_kinematics, yaw_quat
-from crowd_ik.reference.quat import qconj, qmul, qrot
+from crowd_ik.geometry.fk import angles_to_rotations, forward_kinematics, yaw_quat
+from crowd_ik.geometry.quat import qconj, qmul, qrot
 from solve_checks import assert_each_alone_gives_the_same_bits
 
 CHAIN16 = dict(n_bones=16, bone_length=0.1, dim=3)

@@ -60,10 +60,10 @@ def test_a_downed_shooter_has_no_mesh():
         "characters.count": 1, "shooters.count": 2, "shooters.placement": "line", "shooters.radius": 6.0,
         "bullets.pool_size": 64, "time.floor": 1.0, "player.path": [[0.0, -3.0]]})
     world = World(scene, autofire=False)
-    chest = world.shooters.joint_positions()[0, world.hbody.chest]
+    chest = world.shooters.joints[0, world.hbody.chest]
     world.set_player_input((0.0, 0.0), chest, fire=True)
     world.simulate(0.3)
-    assert world.shooter_alive.tolist() == [False, True]
+    assert world.shooters.alive.tolist() == [False, True]
     names = set(world_meshes(world))
     assert "shooter_0" not in names and {"shooter_1", "player", "shards"} <= names
 

@@ -163,7 +163,7 @@ def test_orientation_target_turns_the_sole_flat():
     orient[:, 3] = (0, 1, 0)
     crowd.solve(targets, weights=[0, 0, 0, 1, 0], orientations=orient, max_iterations=10, tolerance=1e-6)
     ankle = h.arrays["eff_joint"][3]
-    from crowd_ik.reference.quat import qrot
+    from crowd_ik.geometry.quat import qrot
     up = qrot(crowd.world_rotations()[:, ankle].astype(np.float64), np.array([0.0, 1.0, 0.0]))
     assert np.all(up[:, 1] > math.cos(math.radians(2)))
 

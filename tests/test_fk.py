@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import crowd_ik as cik
-from crowd_ik.reference import fk as ref
+from crowd_ik.geometry import fk as ref
 
 
 def _random_pose(rig, n, seed, scale=1.0):

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from crowd_ik.game import world as game
+from crowd_ik.game.shards import SHARD_LIFE, SHARD_PIECES
 from crowd_ik.game.world import DT, World, ballistic_direction, cone_sample
 from crowd_ik.scene import load_scene, scene_with, shipped_scenes
 
@@ -68,24 +68,24 @@ def test_time_scale_rises_when_the_player_walks_and_falls_when_it_stops():
 
 def test_bullet_fired_at_a_character_hits_and_shatters_it():
     world = World(lone_character(), autofire=False)
-    world.reflex[:] = 0.0  # a statue: it never reacts
+    world.characters.reflex[:] = 0.0  # a statue: it never reacts
     chest = world.joints()[0, world.body.chest]
     world.fire(chest + [0.0, 0.0, 1.5], [[0.0, 0.0, -25.0]])
     world.simulate(0.2)
     assert world.hits == 1 and world.dodges == 0
-    assert not world.alive[0]
+    assert not world.characters.alive[0]
     assert world.stats["standing"] == 0 and world.stats["bullets"] == 0
     n_shards = world.stats["shards"]
-    assert n_shards == game.SHARD_PIECES * world.body.n_bones
-    start = world._sh_c[world._sh_live].copy()
+    assert n_shards == SHARD_PIECES * world.body.n_bones
+    start = world.shards.c[world.shards.live].copy()
     world.simulate(1.5)
-    now = world._sh_c[world._sh_live]
+    now = world.shards.c[world.shards.live]
     assert np.mean(now[:, 1]) < np.mean(start[:, 1]) - 0.3  # they fell ...
-    low = now[:, 1] - np.abs(world._sh_h[world._sh_live][:, 1]) - world._sh_r[world._sh_live]
+    low = now[:, 1] - np.abs(world.shards.h[world.shards.live][:, 1]) - world.shards.r[world.shards.live]
     assert low.min() > -0.05  # ... onto the ground, not through it
     prim = world.primitives()
     assert np.all(prim["capsules"]["body"] != 0)  # the shattered character is no longer drawn whole
-    world.simulate(game.SHARD_LIFE)
+    world.simulate(SHARD_LIFE)
     assert world.stats["shards"] == 0  # and the shards faded away
     assert world.render().shape == (64, 96, 3)
 
@@ -101,14 +101,14 @@ def _shoot_at(world, joint_name, origin=(0.3, 1.5, 12.0), speed=25.0):
 def test_character_dodges_a_bullet_aimed_at_its_head(prefers_duck):
     # control: a statue in the same spot is hit by the same shot, so the bullet was on target
     statue = World(lone_character(), autofire=False)
-    statue.reflex[:] = 0.0
+    statue.characters.reflex[:] = 0.0
     _shoot_at(statue, "head")
     statue.simulate(1.0)
     assert statue.hits == 1
 
     world = World(lone_character(), autofire=False)
-    world.reflex[:] = 0.6
-    world.prefers_duck[:] = prefers_duck
+    world.characters.reflex[:] = 0.6
+    world.characters.prefers_duck[:] = prefers_duck
     head = world.body.rig.joint_names.index("head")
     head0 = world.joints()[0, head].copy()
     _shoot_at(world, "head")
@@ -116,7 +116,7 @@ def test_character_dodges_a_bullet_aimed_at_its_head(prefers_duck):
     for _ in range(int(1.0 / DT)):
         world.step_world()
         moved = max(moved, float(np.linalg.norm(world.joints()[0, head] - head0)))
-    assert world.hits == 0 and world.alive[0]
+    assert world.hits == 0 and world.characters.alive[0]
     assert world.dodges == 1
     assert moved > 0.15  # it really moved out of the way
     if prefers_duck:
@@ -128,15 +128,15 @@ def test_character_dodges_a_bullet_aimed_at_its_head(prefers_duck):
 
 def test_feet_stay_planted_while_dodging():
     world = World(lone_character(), autofire=False)
-    world.reflex[:] = 0.6
+    world.characters.reflex[:] = 0.6
     names = world.body.rig.joint_names
     ankles = [names.index("ankle_l"), names.index("ankle_r")]
     _shoot_at(world, "chest")
     worst, leaned = 0.0, 0.0
     for _ in range(int(1.0 / DT)):
         world.step_world()
-        worst = max(worst, float(np.abs(world.joints()[0, ankles] - world.planted[0]).max()))
-        leaned = max(leaned, float(np.linalg.norm(world.lean[0])))
+        worst = max(worst, float(np.abs(world.joints()[0, ankles] - world.characters.planted[0]).max()))
+        leaned = max(leaned, float(np.linalg.norm(world.characters.lean[0])))
     assert leaned > 0.2 and world.dodges == 1 and world.hits == 0
     assert worst < 0.02
 
@@ -194,7 +194,7 @@ def shooter_range(**overrides):
 
 
 def _chest(world, k):
-    return world.shooters.joint_positions()[k, world.hbody.chest].astype(np.float64)
+    return world.shooters.joints[k, world.hbody.chest].astype(np.float64)
 
 
 def test_players_bullet_downs_the_shooter_it_hits():
@@ -202,7 +202,7 @@ def test_players_bullet_downs_the_shooter_it_hits():
     N = world.n
     hb = world.hbody
     slot = world.set_player_input((0.0, 0.0), _chest(world, 0), fire=True)
-    assert len(slot) == 1 and world._player_slot[slot[0]]
+    assert len(slot) == 1 and world.bullets.players[slot[0]]
     downed_at = None
     for step in range(int(0.5 / DT)):
         shards = world.stats["shards"]
@@ -210,19 +210,19 @@ def test_players_bullet_downs_the_shooter_it_hits():
         if world.shooters_down:
             downed_at = step
             # it shattered into as many shards as a humanoid character does, and the bullet is gone
-            assert world.stats["shards"] - shards == game.SHARD_PIECES * hb.n_bones
-            assert not world.pool.alive_mask()[slot[0]] and not world._balive[slot[0]]
-            assert not world._player_slot.any()
+            assert world.stats["shards"] - shards == SHARD_PIECES * hb.n_bones
+            assert not world.bullets.pool.alive_mask()[slot[0]] and not world.bullets.alive[slot[0]]
+            assert not world.bullets.players.any()
             break
     assert downed_at is not None and downed_at * DT < 0.3  # 3 m at 25 m/s: about 0.12 s
-    assert world.shooter_alive.tolist() == [False, True]
+    assert world.shooters.alive.tolist() == [False, True]
     assert world.stats["shooters_down"] == 1
     assert "shooters down 1/2" in world.hud_lines()[2]
     # down for good: it fires no more, the other shooter goes on
-    shots = world.shots_fired.copy()
+    shots = world.shooters.shots_fired.copy()
     world.simulate(2.0)
-    assert world.shots_fired[0] == shots[0] and world.shots_fired[1] > shots[1]
-    assert world.shooter_alive.tolist() == [False, True]
+    assert world.shooters.shots_fired[0] == shots[0] and world.shooters.shots_fired[1] > shots[1]
+    assert world.shooters.alive.tolist() == [False, True]
     bodies = world.primitives()["capsules"]["body"]
     assert not np.any(bodies == N + 0) and np.any(bodies == N + 1)  # no longer drawn (shooter 1 still is)
     assert world.render().shape == (64, 96, 3)
@@ -235,12 +235,12 @@ def test_the_first_shooter_along_the_bullets_path_is_hit(direction):
     world.simulate(DT)
     slot = world.set_player_input((0.0, 0.0), _chest(world, 0), fire=True)[0]
     y, z = _chest(world, 0)[1], _chest(world, 0)[2]
-    world._bpos_prev[slot] = [-3.0 * direction, y, z]  # a segment from one side past both chests
-    world._bpos[slot] = [3.0 * direction, y, z]
-    world._player_hits_shooters()
+    world.bullets.pos_prev[slot] = [-3.0 * direction, y, z]  # a segment from one side past both chests
+    world.bullets.pos[slot] = [3.0 * direction, y, z]
+    world._hit_shooters()
     first = 0 if direction > 0 else 1
-    assert world.shooter_alive.tolist() == [k != first for k in range(2)]
-    assert not world._balive[slot] and not world.pool.alive_mask()[slot]
+    assert world.shooters.alive.tolist() == [k != first for k in range(2)]
+    assert not world.bullets.alive[slot] and not world.bullets.pool.alive_mask()[slot]
 
 
 def test_a_shooters_own_bullets_never_down_a_shooter():
@@ -249,7 +249,7 @@ def test_a_shooters_own_bullets_never_down_a_shooter():
     chest = _chest(world, 0)
     world.fire((chest + [0.0, 0.0, 1.5])[None], [[0.0, 0.0, -25.0]])
     world.simulate(0.5)
-    assert world.shooters_down == 0 and world.shooter_alive.all() and world.stats["shards"] == 0
+    assert world.shooters_down == 0 and world.shooters.alive.all() and world.stats["shards"] == 0
     # two shooters facing each other across a dodging character: their misses fly on to each other
     ring = small_scene(**{"characters.count": 1, "shooters.count": 2, "shooters.radius": 6.0,
                           "shooters.fire_rate": 6.0, "shooters.spread_deg": 4.0, "time.floor": 1.0,
@@ -257,14 +257,14 @@ def test_a_shooters_own_bullets_never_down_a_shooter():
     world = World(ring)
     world.simulate(2.0)
     assert world.stats["shots"] >= 6 and world.stats["dodges"] >= 3
-    assert world.shooters_down == 0 and world.shooter_alive.all()
+    assert world.shooters_down == 0 and world.shooters.alive.all()
 
 
 def test_a_players_bullet_that_misses_downs_nobody():
     world = World(shooter_range(), autofire=False)
     world.set_player_input((0.0, 0.0), _chest(world, 0) + [0.0, 3.0, 0.0], fire=True)
     world.simulate(1.0)
-    assert world.shooters_down == 0 and world.shooter_alive.all()
+    assert world.shooters_down == 0 and world.shooters.alive.all()
     assert world.stats["shards"] == 0 and "shooters down 0/2" in world.hud_lines()[2]
 
 
@@ -278,7 +278,7 @@ def test_shooting_shooters_is_deterministic():
             world.step()
             frames.append(world.render())
         stats = {key: v for key, v in world.stats.items() if not key.endswith("_ms")}
-        return (stats, world.joints(), world.shooters.joint_positions(), world._sh_c[world._sh_live],
+        return (stats, world.joints(), world.shooters.joints, world.shards.c[world.shards.live],
                 np.stack(frames))
 
     (stats_a, *arrays_a), (stats_b, *arrays_b) = run(), run()
@@ -293,7 +293,7 @@ def test_layouts_and_rigs(layout, rig):
     scene = small_scene(**{"characters.layout": layout, "characters.rig": rig, "time.floor": 1.0,
                            "shooters.fire_rate": 5.0, "characters.scale": 1.2})
     world = World(scene)
-    roots = world.ground
+    roots = world.characters.ground
     gaps = np.linalg.norm(roots[:, None] - roots[None], axis=-1) + np.eye(len(roots)) * 99
     assert gaps.min() > 0.4 * scene.characters.spacing  # nobody stands inside anybody
     assert np.all(world.joints()[..., 1] > -0.1)  # everyone stands on the ground

@@ -2,8 +2,9 @@
 
 import numpy as np
 
-from crowd_ik.game import world as game
-from crowd_ik.game.world import Body, World
+from crowd_ik.game import characters
+from crowd_ik.game.body import LEG_SLACK, Body
+from crowd_ik.game.world import World
 from crowd_ik.kernels import game_kernels as gk
 from crowd_ik.reference import game_kernels as ref
 from crowd_ik.rig import Rig
@@ -44,15 +45,15 @@ def test_world_keeps_host_joints_and_capsules_in_step():
     for _ in range(3):
         before = world.joints()
         world.step_world()
-        np.testing.assert_array_equal(world.joints(), world.crowd.joint_positions())
-        np.testing.assert_array_equal(world._joints_prev, before)
-    a, b = world._caps[world._caps_now]
+        np.testing.assert_array_equal(world.joints(), world.characters.crowd.joint_positions())
+        np.testing.assert_array_equal(world.characters.limbs.joints_prev, before)
+    a, b = world.characters.limbs.current
     want_a, want_b, _, want_pose, want_box = ref.limb_capsules(
-        world.joints(), world.body.bone_parent, world.body.bone_radius, world._pose_box[1 - world._caps_now].to_numpy())
+        world.joints(), world.body.bone_parent, world.body.bone_radius, world.characters.limbs.pose_box[1 - world.characters.limbs.now].to_numpy())
     np.testing.assert_array_equal(a.to_numpy(), want_a)
     np.testing.assert_array_equal(b.to_numpy(), want_b)
-    np.testing.assert_array_equal(world._pose_box[world._caps_now].to_numpy(), want_pose)
-    np.testing.assert_array_equal(world._owner_box.to_numpy(), want_box)
+    np.testing.assert_array_equal(world.characters.limbs.pose_box[world.characters.limbs.now].to_numpy(), want_pose)
+    np.testing.assert_array_equal(world.characters.limbs.owner_box.to_numpy(), want_box)
 
 
 def _dodge_inputs(body, n, seed):
@@ -82,7 +83,7 @@ def test_dodge_targets_match_twin_and_keep_feet_planted():
     slot = np.full(E, -1, np.int32)
     slot[body.planted] = np.arange(int(body.planted.sum()), dtype=np.int32)
     consts = (body.lean, body.duck, slot, body.hands.astype(np.int32), body.hip_offset.astype(np.float32), 1,
-              body.pelvis_share, game.MAX_PELVIS_SHIFT, game.LEG_SLACK * body.leg_length, body.scale)
+              body.pelvis_share, characters.MAX_PELVIS_SHIFT, LEG_SLACK * body.leg_length, body.scale)
     targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
     gk.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts, targets, out_roots)
     want_t, want_r = ref.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts)
@@ -91,11 +92,11 @@ def test_dodge_targets_match_twin_and_keep_feet_planted():
     np.testing.assert_array_equal(targets[:, body.planted], planted)
     # the pelvis follows the lean by pelvis_share, at most MAX_PELVIS_SHIFT
     shift = lean * body.pelvis_share
-    limit = np.minimum(1.0, game.MAX_PELVIS_SHIFT / np.linalg.norm(shift, axis=1))
+    limit = np.minimum(1.0, characters.MAX_PELVIS_SHIFT / np.linalg.norm(shift, axis=1))
     np.testing.assert_allclose((out_roots - roots)[:, [0, 2]], (shift * limit[:, None])[:, [0, 2]], atol=1e-5)
     assert np.all(limit[:5] < 1.0)
-    # ... and never stands higher than the legs reach (as the Walker's _max_root_y): long leans are held there
-    highest = game._max_root_y(body, out_roots, yaw, planted)
+    # ... and never stands higher than the legs reach (as Body.max_root_y, which the Walker uses): long leans are held there
+    highest = body.max_root_y(out_roots, yaw, planted)
     assert np.all(out_roots[:, 1] <= highest + 1e-5)
     wanted = roots[:, 1] + (shift * limit[:, None])[:, 1] - 0.85 * duck
     held = out_roots[:, 1] < wanted - 1e-4
@@ -107,7 +108,7 @@ def test_dodge_targets_of_a_chain_follow_lean_and_duck_only():
     n, E = 20, body.rig.n_effectors
     rest, lean, duck, guard, roots, yaw, _, chest = _dodge_inputs(body, n, 2)
     consts = (body.lean, body.duck, np.full(E, -1, np.int32), np.full(1, -1, np.int32), np.zeros((1, 3), np.float32),
-              0, 0.0, game.MAX_PELVIS_SHIFT, 1.0, 1.0)
+              0, 0.0, characters.MAX_PELVIS_SHIFT, 1.0, 1.0)
     placeholder = np.zeros((n, 1, 3), np.float32)
     targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
     gk.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts, targets, out_roots)

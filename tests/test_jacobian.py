@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import crowd_ik as cik
-from crowd_ik.reference import fk as ref
-from crowd_ik.reference.quat import qconj, qmul
+from crowd_ik.geometry import fk as ref
+from crowd_ik.geometry.quat import qconj, qmul
 
 
 def _fd_jacobian(rig, a, roots, yaw, eps=1e-6):
@@ -76,7 +76,7 @@ def test_quaternion_columns_are_world_axis_rotations():
         for k in range(3):
             w = np.zeros(3)
             w[k] = eps
-            from crowd_ik.reference.quat import axis_angle
+            from crowd_ik.geometry.quat import axis_angle
             dq = axis_angle(w / eps, np.full(4, eps))  # world rotation by eps about axis k
             local = qmul(qmul(qconj(parent_rot), qmul(dq, parent_rot)), rot[:, j])
             r2 = rot.copy()

@@ -10,8 +10,10 @@ from xwindow import crowd_ik_window, xdo
 
 from crowd_ik.game import world as game
 from crowd_ik.commands.cli import main
-from crowd_ik.game.live import (CHEST_HEIGHT, HEADER, PlayerInput, PlayerWorld, Session, aim_point, format_inputs,
-                           load_inputs, move_from_keys, scene_settings, shooter_chests, walk_toward, write_inputs)
+from crowd_ik.game.world import World
+from crowd_ik.io.inputs import HEADER, PlayerInput, format_inputs, load_inputs, scene_settings, write_inputs
+from crowd_ik.session import Session
+from crowd_ik.view.window import CHEST_HEIGHT, aim_point, move_from_keys, shooter_chests, walk_toward
 from crowd_ik.view.render import Camera
 from crowd_ik.io.video import read_frames
 
@@ -46,7 +48,7 @@ def _scripted_inputs(n=16):
 def _session(tiny, inputs):
     from crowd_ik.scene import load_scene
 
-    session = Session(PlayerWorld(load_scene(tiny), hud_timings=False))
+    session = Session(World(load_scene(tiny), hud_timings=False, open_ended=True))
     frames = [session.frame(inp).copy() for inp in inputs]
     return session, frames
 
@@ -78,15 +80,15 @@ def test_inputs_move_the_player_set_the_time_scale_and_fire(live_run):
     world = session.world
     log = session.log
     assert len(log) == 16 and world.frame == 16
-    assert world.player_shots == 2
+    assert world.player.shots == 2
     # 6 frames at speed 1.5 m/s toward -z, then 4 frames at 0.7 * 1.5 m/s toward +x
-    end = world.player_position()
+    end = world.player.position()
     assert end[2] == pytest.approx(-6 * 1.5 / 24, abs=1e-6)
     assert end[0] == pytest.approx(4 * 0.7 * 1.5 / 24, abs=1e-6)
     assert world.time_scale < 0.9  # standing still for the last 6 frames: time slows down
     # the right hand is held on the line from the shoulder to the aim point
     hb = world.hbody
-    joints = world.player.joint_positions()[0]
+    joints = world.player.crowd.joint_positions()[0]
     aim = np.array(log[-1].aim)
     shoulder, hand = joints[hb.shoulder_r], joints[hb.hand_r]
     d = (aim - shoulder) / np.linalg.norm(aim - shoulder)
@@ -106,13 +108,13 @@ def test_canonical_inputs_are_what_is_recorded_and_applied(live_run):
 def test_fire_spawns_one_bullet_from_the_hand_toward_the_aim(tiny):
     from crowd_ik.scene import load_scene
 
-    world = PlayerWorld(load_scene(tiny), autofire=False)
-    assert len(world.bullets()[0]) == 0
-    hand = world.player.joint_positions()[0, world.hbody.hand_r]
+    world = World(load_scene(tiny), autofire=False, open_ended=True)
+    assert len(world.live_bullets()[0]) == 0
+    hand = world.player.crowd.joint_positions()[0, world.hbody.hand_r]
     aim = np.array([0.0, 1.3, -8.0])
     slots = world.set_player_input((0.0, 0.0), aim, fire=True)
-    assert len(slots) == 1 and world.player_shots == 1
-    pos, vel = world.bullets()
+    assert len(slots) == 1 and world.player.shots == 1
+    pos, vel = world.live_bullets()
     assert np.linalg.norm(pos[0] - hand) < 0.1
     # its ballistic path (no drag in this scene) passes through the aim point
     t = np.linalg.norm((aim - pos[0])[[0, 2]]) / np.linalg.norm(vel[0][[0, 2]])
@@ -143,7 +145,7 @@ def test_a_click_on_a_shooter_downs_it(tmp_path):
 
     path = tmp_path / "range.toml"
     path.write_text(RANGE)
-    world = PlayerWorld(load_scene(path), hud_timings=False)
+    world = World(load_scene(path), hud_timings=False, open_ended=True)
     session = Session(world)
     cam = world.camera
     chests = shooter_chests(world)
@@ -151,18 +153,18 @@ def test_a_click_on_a_shooter_downs_it(tmp_path):
     ((px, py),), _ = cam.project(chests[1][None])
     aim = aim_point(cam, px + 2, py - 1, CHEST_HEIGHT * world.hbody.scale, chests)
     np.testing.assert_allclose(aim, chests[1])  # snapped
-    shots = world.shots_fired.copy()
+    shots = world.shooters.shots_fired.copy()
     session.advance(PlayerInput((0.0, 0.0), tuple(aim), True))
     for _ in range(10):  # about 0.4 s of world time; the bullet needs about 0.12 s
         session.advance(PlayerInput((0.0, 0.0), tuple(aim), False))
-    assert world.player_shots == 1
-    assert world.shooter_alive.tolist() == [True, False] and world.stats["shooters_down"] == 1
+    assert world.player.shots == 1
+    assert world.shooters.alive.tolist() == [True, False] and world.stats["shooters_down"] == 1
     assert "shooters down 1/2" in world.hud_lines()[2]
     np.testing.assert_allclose(shooter_chests(world), chests[:1], atol=0.05)  # only the standing one
-    down_shots = world.shots_fired[1]
+    down_shots = world.shooters.shots_fired[1]
     for _ in range(24):
         session.advance(PlayerInput((0.0, 0.0), tuple(aim), False))
-    assert world.shots_fired[1] == down_shots and world.shots_fired[0] > shots[0]
+    assert world.shooters.shots_fired[1] == down_shots and world.shooters.shots_fired[0] > shots[0]
     assert session.frame(PlayerInput((0.0, 0.0), tuple(aim), False)).shape == (96, 160, 3)
 
 

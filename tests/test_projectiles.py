@@ -1,9 +1,9 @@
-"""kernels/projectiles.py and crowd_ik.game.bullets against the brute-force NumPy twin and hand-built scenes."""
+"""kernels/projectiles.py and crowd_ik.game.pool against the brute-force NumPy twin and hand-built scenes."""
 
 import numpy as np
 import pytest
 
-from crowd_ik.game.bullets import BulletPool, Grid, substep_count
+from crowd_ik.game.pool import BulletPool, Grid, substep_count
 from crowd_ik.kernels import projectiles as kp
 from crowd_ik.reference import projectiles as ref
 

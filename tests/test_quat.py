@@ -1,11 +1,11 @@
-"""kernels/quat.py against its NumPy twin (crowd_ik/reference/quat.py): the joint-limit projection, whose
+"""kernels/quat.py against its NumPy twin (crowd_ik/geometry/quat.py): the joint-limit projection, whose
 no-limit-bites test runs on pseudo-angles instead of trigonometry, and the pseudo-angle itself."""
 
 import numpy as np
 import pytest
 
 import crowd_ik as cik
-from crowd_ik.reference import quat as rq
+from crowd_ik.geometry import quat as rq
 
 cik.init("cpu")
 

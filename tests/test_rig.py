@@ -35,7 +35,7 @@ def test_humanoid_conventions():
     assert h.joints[names.index("elbow_l")].kind == "hinge"
     assert h.joints[names.index("knee_r")].kind == "hinge"
     # y up: the head is the highest joint at rest; the left side is +x (faces +z)
-    from crowd_ik.reference.fk import forward_kinematics, angles_to_rotations
+    from crowd_ik.geometry.fk import forward_kinematics, angles_to_rotations
     rot = angles_to_rotations(h, np.zeros((1, h.n_dof)))
     pos, _ = forward_kinematics(h, np.zeros((1, 3)), np.zeros(1), rot)
     assert np.argmax(pos[0, :, 1]) == names.index("head")

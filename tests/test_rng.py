@@ -5,7 +5,7 @@ import pytest
 from scipy import stats
 
 from crowd_ik.kernels import rng as krng
-from crowd_ik.reference import rng as rrng
+from crowd_ik.geometry import rng as rrng
 
 
 def _triples(n, seed=0):

@@ -42,7 +42,8 @@ def test_init_records_the_lane_width():
 
 
 def test_twins_and_kernels_share_the_constants():
-    from crowd_ik.reference import dls, fabrik, quat
+    from crowd_ik.geometry import quat
+    from crowd_ik.reference import dls, fabrik
 
     assert fabrik.STALL_AFTER == settings.FABRIK_STALL_AFTER and fabrik.FLAT == settings.FABRIK_FLAT
     assert dls.STALL_AFTER == settings.DLS_STALL_AFTER and dls.LAM_CAP == settings.DLS_LAM_CAP

@@ -171,7 +171,7 @@ def measure(records: list[dict], make_workload, repeats: int, threads: int | Non
     it filled. The first call of each kernel (numba's compile) is not timed."""
     import numba
 
-    from crowd_ik.reference.fk import forward_kinematics
+    from crowd_ik.geometry.fk import forward_kinematics
 
     if threads is not None:
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))

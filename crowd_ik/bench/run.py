@@ -235,7 +235,7 @@ class Workload:
 
     def rotations(self) -> np.ndarray:
         """(m, J, 4) local rotations of the start pose (the NumPy twins' input)."""
-        from crowd_ik.reference.fk import angles_to_rotations
+        from crowd_ik.geometry.fk import angles_to_rotations
 
         return angles_to_rotations(self.rig, self.angles.astype(np.float64))
 
@@ -251,7 +251,7 @@ def _unit_ball(rng_dir, rng_rad, shape: tuple, radius: float) -> np.ndarray:
 def make_workload(name: str, n: int, m: int | None = None) -> Workload:
     """The seeded workload `name` of n characters, or its first m characters (identical to theirs)."""
     from crowd_ik.crowd import grid_positions
-    from crowd_ik.reference.fk import angles_to_rotations, forward_kinematics
+    from crowd_ik.geometry.fk import angles_to_rotations, forward_kinematics
 
     if name not in RIGS:
         raise ValueError(f"rig: expected one of {', '.join(RIGS)} (got {name!r})")
@@ -390,7 +390,7 @@ def game_workload(n: int) -> Workload:
     """As in the game: humanoids standing in natural poses (a quarter of their joint ranges around rest), their
     effectors' targets where the pose puts them (reachable); the cold solve starts from rest."""
     from crowd_ik.crowd import grid_positions
-    from crowd_ik.reference.fk import angles_to_rotations, forward_kinematics
+    from crowd_ik.geometry.fk import angles_to_rotations, forward_kinematics
 
     rig = _rig("humanoid")
     rng = np.random.default_rng(np.random.SeedSequence([SEED, 99]))
@@ -404,7 +404,7 @@ def game_workload(n: int) -> Workload:
 
 def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     """The game workload: a cold solve, then warm-started 4-iteration FABRIK frames plus the bullet step."""
-    from crowd_ik.game.bullets import BulletPool
+    from crowd_ik.game.pool import BulletPool
     from crowd_ik.crowd import Crowd, Status
 
     wl = game_workload(n)
@@ -415,27 +415,13 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     cold_s, cold = _solve_timed(crowd, wl, FABRIK)
     cold_out = _outcome(cold.error, cold.iterations, cold.status == Status.CONVERGED, cold.status != Status.UNREACHABLE)
 
-    import taichi as ti
-
-    from crowd_ik.kernels import game_kernels as gk
+    from crowd_ik.game.body import Body
+    from crowd_ik.game.limbs import Limbs
 
     B = J - 1  # bones: bone k joins joint parent[k + 1] to joint k + 1
-
-    def ndarray(value: np.ndarray, dtype):
-        arr = ti.ndarray(dtype, shape=value.shape[:1] if dtype == ti.math.vec3 else value.shape)
-        arr.from_numpy(np.ascontiguousarray(value))
-        return arr
-
-    # as crowd_ik.game.world.World does it: capsules, host joints and per-character boxes in one launch, the
-    # capsules left in ndarrays for the pool, which skips characters no bullet can reach
-    bone_parent = ndarray(rig.arrays["parent"][1:].astype(np.int32), ti.i32)
-    bone_radius = ndarray(rig.arrays["radius"][1:].astype(np.float32), ti.f32)
-    radii = ndarray(np.tile(rig.arrays["radius"][1:], n).astype(np.float32), ti.f32)
-    owner = ndarray(np.repeat(np.arange(n, dtype=np.int32), B), ti.i32)
-    caps = [tuple(ndarray(np.zeros((n * B, 3), np.float32), ti.math.vec3) for _ in range(2)) for _ in range(2)]
-    box = ndarray(np.zeros((n, 4), np.float32), ti.f32)
-    pose_box = [ndarray(np.zeros((n, 4), np.float32), ti.f32) for _ in range(2)]
-    joints = [np.zeros((n, J, 3), np.float32) for _ in range(2)]
+    # the World's limbs: capsules, host joints and per-character boxes in one launch, the capsules left in
+    # ndarrays for the pool, which skips characters no bullet can reach; both sets hold the cold pose
+    limbs = Limbs(Body(rig), n, crowd)
     alive = np.ones(n, np.int32)
     lo, hi = wl.roots.min(0) - 3.0, wl.roots.max(0) + 3.0
     pool = BulletPool(pool_size, radius=0.03, bounds=(lo[0], lo[2], hi[0], hi[2]), cell_size=1.0,
@@ -446,30 +432,24 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     heading = rng.uniform(0, 2 * np.pi, pool_size)
     velocities = (25.0 * np.stack([np.cos(heading), np.zeros(pool_size), np.sin(heading)], axis=1)).astype(np.float32)
 
-    def capsules(now: int) -> None:
-        gk.limb_capsules(crowd.world_pos, bone_parent, bone_radius, pose_box[1 - now], *caps[now], joints[now],
-                         pose_box[now], box)
-
     offsets = _smooth_offsets(n, E, SEED + 2)
     feet = np.array([name.startswith("foot") for name in rig.effector_names])
-    capsules(0)
-    capsules(1)  # both capsule sets hold the cold pose
-    now = 1
     solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, motion, hits = [], [], [], [], [], [], [], [], [], 0
     for f in range(GAME_WARMUP_FRAMES + frames):
         targets = wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0))  # feet planted
-        now = 1 - now
         t0 = time.perf_counter()
         rep = crowd.solve(targets, method=FABRIK, max_iterations=4, tolerance=wl.tolerance)
         t1 = time.perf_counter()
-        capsules(now)
+        limbs.begin_step()
+        limbs.update()
         t2 = time.perf_counter()
         pool.spawn(origins, velocities)
-        step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, *caps[now], radii, owner, alive, n,
-                                 prev_a=caps[1 - now][0], prev_b=caps[1 - now][1], owner_boxes=box, owner_stride=B)
+        step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, *limbs.current, limbs.radius, limbs.owner, alive, n,
+                                 prev_a=limbs.previous[0], prev_b=limbs.previous[1], owner_boxes=limbs.owner_box,
+                                 owner_stride=B)
         t3 = time.perf_counter()
         # how far the limbs moved this frame: per character its largest joint step, metres
-        step = np.linalg.norm(joints[now] - joints[1 - now], axis=2).max(axis=1)
+        step = np.linalg.norm(limbs.joints - limbs.joints_prev, axis=2).max(axis=1)
         if f < GAME_WARMUP_FRAMES:
             continue
         motion.append((float(np.median(step)), float(step.max())))
@@ -516,7 +496,7 @@ def game_scene(steps: int, name: str = GAME_SCENE, warmup: int = GAME_SCENE_WARM
         ik.append(ms["ik"])
         bullets.append(ms["bullets"])
         total.append(ms["total"])
-        rep = world.last_report
+        rep = world.characters.last_report
         solving.append(float(np.mean(rep.iterations > 0)))
         iters.append(float(rep.iterations.mean()))
         alive.append(world.stats["bullets"])

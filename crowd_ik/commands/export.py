@@ -7,14 +7,20 @@ standing shooter, `player`, and `shards` / `bullets` when there are any. glTF's 
 world's: y up, metres.
 
 The capsules are built from one trimesh capsule template, moved and scaled per capsule in one
-vectorised step (its upper hemisphere goes to the capsule's end b, the lower one to a).
+vectorised step (its upper hemisphere goes to the capsule's end b, the lower one to a; see
+crowd_ik.io.gltf.capsule_vertices).
 The file is written atomically and never clobbers an existing one without --force.
 
 `crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` writes character K's motion as
 BVH (crowd_ik.io.clip: metres, y up, one BVH frame per video frame). SCENE is simulated as `play`
 would for N frames (default the scene's frame count), without rendering; SCENE may instead be a
 clip saved by `crowd-ik play ... --clip F.npz` (a live session replayed with --inputs, say), whose
-first N frames are then written.
+first N frames are then written. `--characters all|K,L,...` instead writes several characters into
+one file, one ROOT each (joint names prefixed c<K>_).
+
+`crowd-ik export SCENE --animated [-o F.glb] [--characters all|K,L,...] [--frames N]` writes the
+characters' motion (all by default) as an animated .glb: per character a capsule mesh skinned to its
+joint nodes and one animation of their rotations and the root's translation (crowd_ik.io.gltf).
 """
 
 from __future__ import annotations
@@ -25,40 +31,9 @@ from pathlib import Path
 import numpy as np
 
 from crowd_ik import runtime
+from crowd_ik.io.gltf import capsule_vertices
 from crowd_ik.io.output import atomic_path, check_writable
 from crowd_ik.scene import load_scene
-
-TEMPLATE_COUNT = (8, 8)  # template capsule resolution (trimesh count): 66 vertices a capsule
-
-
-def _template():
-    """(unit offsets (V, 3), top (V,) bool, faces (F, 3)) of a unit-radius capsule along +z."""
-    import trimesh
-
-    mesh = trimesh.creation.capsule(height=1.0, radius=1.0, count=list(TEMPLATE_COUNT))
-    v = np.asarray(mesh.vertices, np.float64)
-    top = v[:, 2] > 0.0
-    unit = v - np.where(top[:, None], [0.0, 0.0, 0.5], [0.0, 0.0, -0.5])
-    return unit, top, np.asarray(mesh.faces, np.int64)
-
-
-def capsule_vertices(a: np.ndarray, b: np.ndarray, radius: np.ndarray):
-    """Vertices (M, V, 3) and shared faces (F, 3) of M capsules from a (M, 3) to b (M, 3) with radius (M,)."""
-    unit, top, faces = _template()
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    axis = b - a
-    length = np.linalg.norm(axis, axis=1, keepdims=True)
-    z = np.where(length > 1e-9, axis / np.maximum(length, 1e-9), [0.0, 1.0, 0.0])
-    helper = np.where(np.abs(z[:, 1:2]) < 0.9, [0.0, 1.0, 0.0], [1.0, 0.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    y = np.cross(z, x)
-    basis = np.stack([x, y, z], axis=1)  # (M, 3, 3): rows are the capsule's local axes in the world
-    offsets = np.einsum("vk,mkd->mvd", unit, basis) * np.asarray(radius, np.float64)[:, None, None]
-    ends = np.where(top[None, :, None], b[:, None, :], a[:, None, :])
-    return ends + offsets, faces
-
 
 def world_meshes(world) -> dict:
     """{name: trimesh.Trimesh} of the world's current frame, one mesh per body (see the module docstring)."""
@@ -107,24 +82,39 @@ def write_glb(path, meshes: dict, force: bool = False) -> Path:
     return Path(path)
 
 
-def run_bvh(args) -> int:
-    """`crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` (see the module docstring)."""
-    from crowd_ik.io.clip import bvh_from_clip, bvh_joints, load_clip, record_clip
-    from crowd_ik.io.output import write_text
+def _pick(text: str, valid: list[int], source: str) -> list[int]:
+    """--characters "all" or "K,L,...": indices among valid (a scene's 0..N-1, or those a clip holds)."""
+    if text.strip() == "all":
+        return list(valid)
+    try:
+        picked = [int(k) for k in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--characters: expected 'all' or indices such as 0,2,5 (got {text!r})") from None
+    for k in picked:
+        if k not in valid:
+            shown = f"0..{valid[-1]}" if valid == list(range(len(valid))) else str(valid[:10])
+            raise ValueError(f"--characters: {source} has characters {shown} (got {k})")
+    if len(set(picked)) != len(picked):
+        raise ValueError(f"--characters: an index repeats (got {text!r})")
+    return picked
+
+
+def _motion(args, out: str, what: str, default_all: bool):
+    """(clip arrays, source name, characters) for --bvh or --animated: a scene simulated as `play` would
+    for --frames N (default its own), or the first N frames of a clip .npz. characters: an int for
+    --character K, else the list --characters names (all by default when default_all)."""
+    from crowd_ik.io.clip import load_clip, record_clip
     from crowd_ik.scene import scene_with
 
-    out = args.bvh
-    if Path(out).suffix.lower() != ".bvh":
-        raise ValueError(f"--bvh: motion is written as a .bvh file (got {out!r})")
-    if args.output is not None:
-        raise ValueError(f"-o: with --bvh the output is the --bvh file (got -o {args.output})")
-    if args.frame != 0:
-        raise ValueError(f"--frame: picks the .glb's frame; with --bvh give the length with --frames N "
-                         f"(got --frame {args.frame})")
-    if args.character < 0:
+    if args.character is not None and args.characters is not None:
+        raise ValueError(f"--character: give --character K or --characters {args.characters}, not both")
+    if args.character is not None and args.character < 0:
         raise ValueError(f"--character: must be zero or a positive integer (got {args.character})")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames: must be a positive integer (got {args.frames})")
+    wanted = args.characters if args.characters is not None else ("all" if default_all and args.character is None
+                                                                   else None)
+    single = 0 if args.character is None else args.character
     source = args.scene
     if source is not None and Path(source).suffix.lower() == ".npz":
         check_writable(out, args.force)
@@ -136,26 +126,82 @@ def run_bvh(args) -> int:
             for key in [k for k in clip if k.endswith(("_root", "_yaw", "_angles", "_alive"))]:
                 clip[key] = clip[key][: args.frames]
         name = Path(source).name
-    else:
-        scene = load_scene(source)
-        if args.frames is not None:
-            scene = scene_with(scene, frames=args.frames)
-        count = scene.characters.count
-        if args.character >= count:
-            raise ValueError(f"--character: {scene.name} has {count} characters, 0..{count - 1} (got {args.character})")
-        check_writable(out, args.force)
-        runtime.init(arch=args.arch, threads=args.threads)
-        clip = record_clip(scene, characters=[args.character])
-        name = scene.name
-    rig, text = bvh_from_clip(clip, args.character, name)
+        held = [int(k) for k in clip["characters_index"]]
+        return clip, name, single if wanted is None else _pick(wanted, held, name)
+    scene = load_scene(source)
+    if args.frames is not None:
+        scene = scene_with(scene, frames=args.frames)
+    count = scene.characters.count
+    if wanted is None and single >= count:
+        raise ValueError(f"--character: {scene.name} has {count} characters, 0..{count - 1} (got {single})")
+    characters = single if wanted is None else _pick(wanted, list(range(count)), scene.name)
+    check_writable(out, args.force)
+    runtime.init(arch=args.arch, threads=args.threads)
+    record = [characters] if wanted is None else characters
+    return record_clip(scene, characters=record, what=what), scene.name, characters
+
+
+def _alive_note(clip, characters: list[int]) -> str:
+    index = [int(k) for k in clip["characters_index"]]
+    alive = np.asarray(clip["characters_alive"])[:, [index.index(k) for k in characters]]
+    hits = [f"{k} at frame {int(np.argmin(alive[:, i]))}" for i, k in enumerate(characters) if not alive[:, i].all()]
+    return f"; hit: {', '.join(hits[:8])}{' ...' if len(hits) > 8 else ''} (still after)" if hits else ""
+
+
+def run_bvh(args) -> int:
+    """`crowd-ik export SCENE --bvh OUT.bvh [--character K | --characters all|K,L,...] [--frames N]`."""
+    from crowd_ik.io.clip import bvh_from_clip, bvh_joints
+    from crowd_ik.io.output import write_text
+
+    out = args.bvh
+    if Path(out).suffix.lower() != ".bvh":
+        raise ValueError(f"--bvh: motion is written as a .bvh file (got {out!r})")
+    if args.output is not None:
+        raise ValueError(f"-o: with --bvh the output is the --bvh file (got -o {args.output})")
+    if args.animated:
+        raise ValueError("--animated: writes a .glb given with -o; --bvh writes the BVH")
+    if args.frame != 0:
+        raise ValueError(f"--frame: picks the .glb's frame; with --bvh give the length with --frames N "
+                         f"(got --frame {args.frame})")
+    clip, name, characters = _motion(args, out, "--bvh", default_all=False)
+    rig, text = bvh_from_clip(clip, characters, name)
     write_text(out, text, force=args.force)
-    i = int(np.flatnonzero(np.asarray(clip["characters_index"]) == args.character)[0])
-    alive = np.asarray(clip["characters_alive"])[:, i]
-    frames = len(alive)
-    hit = f"; hit at frame {int(np.argmin(alive))}, still after" if not alive.all() else ""
+    many = isinstance(characters, list)
+    chosen = characters if many else [characters]
+    frames = len(clip["characters_root"])
     channels = len(bvh_joints(rig))
-    print(f"{out}: character {args.character} of {name}, {frames} frames at {float(clip['fps']):g} fps, "
-          f"{channels} joints with channels and {rig.n_joints - channels} end sites, metres, y up{hit}")
+    who = f"{len(chosen)} characters ({', '.join(map(str, chosen[:8]))}{' ...' if len(chosen) > 8 else ''}), " \
+          f"one ROOT each, joints named c<K>_..." if many else f"character {characters}"
+    print(f"{out}: {who} of {name}, {frames} frames at {float(clip['fps']):g} fps, "
+          f"{channels} joints with channels and {rig.n_joints - channels} end sites, metres, y up"
+          f"{_alive_note(clip, chosen)}")
+    return 0
+
+
+def run_animated(args) -> int:
+    """`crowd-ik export SCENE --animated [-o F.glb] [--characters all|K,L,...] [--frames N]`: the
+    characters' motion as skinned capsule meshes with one animation (crowd_ik.io.gltf)."""
+    from crowd_ik.io.clip import rig_from_arrays
+    from crowd_ik.io.gltf import write_animated_glb
+
+    if args.frame != 0:
+        raise ValueError(f"--frame: picks a still .glb's frame; with --animated give the length with --frames N "
+                         f"(got --frame {args.frame})")
+    stem = Path(args.scene).stem if args.scene is not None else "arena"
+    out = args.output if args.output is not None else f"{stem}_motion.glb"
+    if Path(out).suffix.lower() != ".glb":
+        raise ValueError(f"-o: an animated scene is written as a .glb file (got {out!r})")
+    clip, name, characters = _motion(args, out, "--animated", default_all=True)
+    chosen = characters if isinstance(characters, list) else [characters]
+    index = [int(k) for k in clip["characters_index"]]
+    cols = [index.index(k) for k in chosen]
+    rig = rig_from_arrays(clip, "characters", name)
+    root, yaw, angles = (clip[f"characters_{key}"][:, cols] for key in ("root", "yaw", "angles"))
+    write_animated_glb(out, rig, root, yaw, angles, float(clip["fps"]), [f"character_{k}" for k in chosen],
+                       force=args.force)
+    print(f"{out}: {len(chosen)} characters of {name}, {len(root)} frames at {float(clip['fps']):g} fps, "
+          f"{rig.n_joints} joints each, skinned capsules with one animation, metres, y up"
+          f"{_alive_note(clip, chosen)}")
     return 0
 
 
@@ -164,9 +210,14 @@ def run(args) -> int:
     (with --bvh: one character's motion, see run_bvh)."""
     if getattr(args, "bvh", None):
         return run_bvh(args)
+    if getattr(args, "animated", False):
+        return run_animated(args)
     if getattr(args, "frames", None) is not None:
-        raise ValueError(f"--frames: only with --bvh; a .glb is one frame, chosen with --frame K "
+        raise ValueError(f"--frames: only with --bvh or --animated; a .glb is one frame, chosen with --frame K "
                          f"(got --frames {args.frames})")
+    for flag in ("character", "characters"):
+        if getattr(args, flag, None) is not None:
+            raise ValueError(f"--{flag}: only with --bvh or --animated; a still .glb holds every body")
     if args.frame < 0:
         raise ValueError(f"--frame: must be zero or a positive integer (got {args.frame})")
     scene = load_scene(args.scene)
@@ -182,10 +233,12 @@ def run(args) -> int:
 
     from tqdm import tqdm
 
+    from crowd_ik.session import frames
+
     world = World(scene)
-    for _ in tqdm(range(args.frame), desc=f"simulating {scene.name}", unit="frame", file=sys.stderr,
-                  dynamic_ncols=True, leave=False, disable=args.frame < 30):
-        world.step()
+    for _ in tqdm(frames(world, args.frame + 1), total=args.frame + 1, desc=f"simulating {scene.name}",
+                  unit="frame", file=sys.stderr, dynamic_ncols=True, leave=False, disable=args.frame < 30):
+        pass
     meshes = world_meshes(world)
     write_glb(out, meshes, force=args.force)
     standing = sum(name.startswith("character_") for name in meshes)
@@ -196,4 +249,4 @@ def run(args) -> int:
     return 0
 
 
-__all__ = ["run", "run_bvh", "world_meshes", "write_glb", "capsule_vertices"]
+__all__ = ["run", "run_bvh", "run_animated", "world_meshes", "write_glb", "capsule_vertices"]

@@ -6,7 +6,7 @@ Order of work: check the arguments and that every output may be written (no clob
 frame by frame into the sink. Ctrl-C finalises the frames written so far as a shorter, playable
 video (the sink's context manager; a --clip keeps those frames too) and the CLI exits with 130.
 
---live plays in a window (crowd_ik.game.live; --record F.csv saves the inputs); --inputs F.csv replays
+--live plays in a window (crowd_ik.commands.live; --record F.csv saves the inputs); --inputs F.csv replays
 such a recording headless, one video frame per row, with the recorded fps, size, seed and solver
 unless the command line gives others; --clip F.npz also saves every body's root transforms and
 joint angles per video frame (crowd_ik.io.clip); --labels F.jsonl writes every frame's pose labels
@@ -24,40 +24,8 @@ from pathlib import Path
 from crowd_ik import runtime
 from crowd_ik.io.output import check_writable, check_writable_dir, is_dir_target, write_json
 from crowd_ik.io.stats import format_summary, summary
-from crowd_ik.scene import Scene, load_scene, parse_size, scene_with
-
-def check_modes(args) -> None:
-    """Refuse flag combinations that mean nothing: --live plays a window (no video, no clip)."""
-    if args.live:
-        for flag, given in (("-o", args.output), ("--still", args.still), ("--inputs", args.inputs),
-                            ("--clip", args.clip), ("--labels", getattr(args, "labels", None))):
-            if given is not None:
-                raise ValueError(f"{flag}: not with --live, which writes no video; record the inputs with "
-                                 f"--record F.csv and render them with --inputs F.csv -o OUT.mp4")
-    elif args.record is not None:
-        raise ValueError(f"--record: records the inputs of a --live session (got --record {args.record} "
-                         f"without --live)")
-
-
-def build_scene(args, recorded: dict | None = None) -> Scene:
-    """The scene file (or the built-in arena) with the command line's overrides applied and checked.
-
-    recorded: settings of a recorded session (seed, fps, size, solver as text), used where the
-    command line gives none.
-    """
-    scene = load_scene(args.scene)
-    if args.seed is not None and args.seed < 0:
-        raise ValueError(f"--seed: must be zero or a positive integer (got {args.seed})")
-    size = None if args.size is None else parse_size(args.size, "--size")
-    rec = recorded or {}
-    seed = args.seed if args.seed is not None or "seed" not in rec else int(rec["seed"])
-    fps = args.fps if args.fps is not None or "fps" not in rec else float(rec["fps"])
-    if size is None and "size" in rec:
-        size = parse_size(rec["size"], "size")
-    method = args.solver if args.solver is not None else rec.get("solver")
-    return scene_with(scene, seed=seed, frames=args.frames, seconds=args.seconds, fps=fps, size=size,
-                      method=method)
-
+from crowd_ik.commands.play_args import build_scene, check_modes  # noqa: F401  (play's API too)
+from crowd_ik.scene import Scene, scene_with
 
 def output_path(args, scene: Scene) -> str:
     """-o, or ./<scene>.mp4 (./<scene>_frame<K>.png with --still K)."""
@@ -134,11 +102,12 @@ def run(args) -> int:
     t_start = time.perf_counter()
     check_modes(args)
     if args.live:
-        from crowd_ik.game import live
+        from crowd_ik.commands import live
+
         return live.run(args)
     log = None
     if args.inputs is not None:
-        from crowd_ik.game.live import load_inputs
+        from crowd_ik.io.inputs import load_inputs
 
         log = load_inputs(args.inputs)
         scene = _inputs_scene(args, log)
@@ -150,26 +119,17 @@ def run(args) -> int:
     from crowd_ik.game.world import World
     from crowd_ik.io.video import open_sink, write_png
 
-    if log is not None:
-        from crowd_ik.game.live import PlayerWorld, Session
+    from crowd_ik.session import frames
 
-        world = PlayerWorld(scene, hud_timings=args.hud_timings)
-        session = Session(world)
-
-        def advance(k: int) -> None:  # video frame k shows the world after input row k
-            session.advance(log.inputs[k])
-    else:
-        world = World(scene, hud_timings=args.hud_timings)
-
-        def advance(k: int) -> None:  # video frame k shows the world after k steps
-            if k:
-                world.step()
+    world = World(scene, hud_timings=args.hud_timings, open_ended=log is not None)
+    count = (args.still + 1) if args.still is not None else scene.n_frames
+    steps = frames(world, count, log.inputs if log is not None else None)
 
     clip = None
     if args.clip is not None:
         from crowd_ik.io.clip import ClipRecorder
 
-        clip = ClipRecorder(world, (args.still + 1) if args.still is not None else scene.n_frames)
+        clip = ClipRecorder(world, count)
     labels = contextlib.nullcontext()
     if args.labels is not None:
         from crowd_ik.io.labels import LabelsWriter
@@ -178,8 +138,7 @@ def run(args) -> int:
     try:
         if args.still is not None:
             with labels, _progress(args.still + 1, f"{scene.name} still") as bar:
-                for k in range(args.still + 1):
-                    advance(k)
+                for k in steps:
                     if clip is not None:
                         clip.add(world)
                     if k < args.still:
@@ -195,8 +154,7 @@ def run(args) -> int:
             rendered = 0
             with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
                     labels, _progress(n, scene.name) as bar:
-                for k in range(n):
-                    advance(k)
+                for k in steps:
                     if clip is not None:
                         clip.add(world)
                     sink.write(world.render())
@@ -213,7 +171,7 @@ def run(args) -> int:
     info = summary(world, scene, out, time.perf_counter() - t_start, arch, rendered)
     if log is not None:
         info["inputs"] = str(args.inputs)
-        info["player_shots"] = world.player_shots
+        info["player_shots"] = world.player.shots
     if clip is not None:
         info["clip"] = str(args.clip)
     if args.labels is not None:
@@ -222,7 +180,7 @@ def run(args) -> int:
         write_json(args.stats, info, force=args.force)
     print(format_summary(info), flush=True)
     if log is not None:
-        print(f"  inputs      {args.inputs} ({len(log)} rows, {world.player_shots} player shots)")
+        print(f"  inputs      {args.inputs} ({len(log)} rows, {world.player.shots} player shots)")
     if clip is not None:
         print(f"  clip        {args.clip} ({clip.count} frames)")
     if args.labels is not None:

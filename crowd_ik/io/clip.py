@@ -29,7 +29,8 @@ FK (clip_joint_positions): p_0 = root, R_0 = Ry(yaw) R(angles of joint 0); for j
 p_j = p_parent + R_parent offset_j and R_j = R_parent R(angles of j).
 
 BVH (`crowd-ik export SCENE --bvh OUT.bvh --character K`): one body's motion, in metres (Blender:
-import with scale 1), y up, Frame Time = 1 / fps. ROOT is the rig's root joint at OFFSET 0 with
+import with scale 1), y up, Frame Time = 1 / fps; `--characters K,L,...` writes one ROOT per
+character, in that order, its joint names prefixed c<K>_. ROOT is the rig's root joint at OFFSET 0 with
 channels Xposition Yposition Zposition Yrotation Xrotation Zrotation (its world position, and yaw
 times its own rotation as intrinsic Y-X-Z Euler angles); every other joint has Xrotation Yrotation
 Zrotation, intrinsic X-Y-Z, so a ball joint's channels are its angles in degrees. A fixed joint
@@ -46,8 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from crowd_ik.reference import fk as ref_fk
-from crowd_ik.reference.quat import qmul, qrot
+from crowd_ik.geometry import fk as ref_fk
+from crowd_ik.geometry.quat import qmul, qrot
 from crowd_ik.rig import Joint, Rig
 
 FORMAT = "crowd_ik.clip/1"
@@ -103,7 +104,7 @@ def rig_from_arrays(data, group: str, source: str = "clip") -> Rig:
 
 
 def _group_crowds(world) -> list:
-    return [("characters", world.crowd), ("shooters", world.shooters), ("player", world.player)]
+    return [("characters", world.characters.crowd), ("shooters", world.shooters.crowd), ("player", world.player.crowd)]
 
 
 def clip_bytes(world, frames: int, characters=None) -> int:
@@ -174,9 +175,9 @@ class ClipRecorder:
             g["yaw"][k] = crowd.roots()[1][idx]
             g["angles"][k] = crowd.angles()[idx]
             if group == "characters":
-                g["alive"][k] = world.alive[idx]
+                g["alive"][k] = world.characters.alive[idx]
             elif group == "shooters":
-                g["alive"][k] = world.shooter_alive[idx]
+                g["alive"][k] = world.shooters.alive[idx]
         self.count += 1
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -218,13 +219,12 @@ def record_clip(scene, frames: int | None = None, characters=None, what: str = "
     """Play `scene` as `crowd-ik play` does (frame 0 before any step) for `frames` frames (default
     the scene's) without rendering, and return the clip's arrays."""
     from crowd_ik.game.world import World
+    from crowd_ik.session import frames as world_frames
 
     n = scene.n_frames if frames is None else int(frames)
     world = World(scene)
     rec = ClipRecorder(world, n, characters, what=what)
-    for k in range(n):
-        if k:
-            world.step()
+    for _ in world_frames(world, n):
         rec.add(world)
     return rec.arrays()
 
@@ -344,25 +344,43 @@ def bvh_joints(rig: Rig) -> list[int]:
     return out
 
 
-def bvh_text(rig: Rig, root, yaw, angles, fps: float) -> str:
+def bvh_text(rig: Rig, root, yaw, angles, fps: float, prefixes=None) -> str:
     """A BVH file of one body: root (F, 3) world position of the root joint, yaw (F,) radians,
-    angles (F, D) radians, at `fps` frames per second (see the module docstring)."""
-    root = np.asarray(root, np.float64).reshape(-1, 3)
-    yaw = np.asarray(yaw, np.float64).reshape(-1)
+    angles (F, D) radians, at `fps` frames per second (see the module docstring). Several bodies:
+    root (F, n, 3), yaw (F, n), angles (F, n, D) and prefixes (n,) put before each body's joint
+    names; each body is a ROOT of its own, its channels after the previous body's."""
+    if prefixes is None:
+        root, yaw, angles, prefixes = (np.asarray(root)[:, None], np.asarray(yaw)[:, None],
+                                       np.asarray(angles)[:, None], [""])
+    root = np.asarray(root, np.float64)
+    yaw = np.asarray(yaw, np.float64)
     angles = np.asarray(angles, np.float64)
-    F = len(root)
-    if F == 0 or yaw.shape != (F,) or angles.shape != (F, rig.n_dof):
-        raise ValueError(f"bvh: expected one root, yaw and angle row per frame (got {F}, {yaw.shape}, {angles.shape})")
+    F, n = yaw.shape if yaw.ndim == 2 else (0, -1)
+    if F == 0 or len(prefixes) != n or root.shape != (F, n, 3) or angles.shape != (F, n, rig.n_dof):
+        raise ValueError(f"bvh: expected one root, yaw and angle row per frame and body (got {root.shape}, "
+                         f"{yaw.shape}, {angles.shape} for {len(prefixes)} bodies)")
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"bvh: fps must be positive (got {fps!r})")
+    lines, columns = ["HIERARCHY"], []
+    for b, prefix in enumerate(prefixes):
+        _bvh_body(rig, root[:, b], yaw[:, b], angles[:, b], str(prefix), lines, columns)
+    motion = np.concatenate(columns, axis=1)
+    motion[np.abs(motion) < 5e-7] = 0.0  # no "-0.000000"
+    buf = io.StringIO()
+    np.savetxt(buf, motion, fmt="%.6f", delimiter=" ")
+    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / float(fps):.8f}"]
+    return "\n".join(lines) + "\n" + buf.getvalue()
+
+
+def _bvh_body(rig: Rig, root, yaw, angles, prefix: str, lines: list, columns: list) -> None:
+    """Append one body's ROOT block to lines and its channel columns (F, k) to columns."""
     q = ref_fk.angles_to_rotations(rig, angles)  # (F, J, 4)
     q[:, 0] = qmul(ref_fk.yaw_quat(yaw), q[:, 0])
 
     def vec(v) -> str:
         return " ".join(f"{float(c):.6f}" for c in v)
 
-    lines = ["HIERARCHY"]
-    columns = [root]
+    columns.append(root)
     todo: list[tuple[int, int]] = [(0, 0)]  # (joint, depth); joint -1 closes the block at that depth
     while todo:
         j, depth = todo.pop()
@@ -372,10 +390,10 @@ def bvh_text(rig: Rig, root, yaw, angles, fps: float) -> str:
             continue
         joint = rig.joints[j]
         if j == 0:
-            lines += [f"ROOT {joint.name}", "{", "\tOFFSET 0.000000 0.000000 0.000000",
+            lines += [f"ROOT {prefix}{joint.name}", "{", "\tOFFSET 0.000000 0.000000 0.000000",
                       "\tCHANNELS 6 Xposition Yposition Zposition " + " ".join(f"{a}rotation" for a in ROOT_ORDER)]
         else:
-            lines += [f"{pad}JOINT {joint.name}", pad + "{", f"{pad}\tOFFSET {vec(joint.offset)}",
+            lines += [f"{pad}JOINT {prefix}{joint.name}", pad + "{", f"{pad}\tOFFSET {vec(joint.offset)}",
                       f"{pad}\tCHANNELS 3 " + " ".join(f"{a}rotation" for a in JOINT_ORDER)]
         columns.append(np.degrees(matrix_to_euler(quat_to_matrix(q[:, j]), ROOT_ORDER if j == 0 else JOINT_ORDER)))
         end = _end_site(rig, j)
@@ -386,26 +404,26 @@ def bvh_text(rig: Rig, root, yaw, angles, fps: float) -> str:
             kids = ()
         todo.append((-1, depth))
         todo.extend((c, depth + 1) for c in reversed(kids))
-    motion = np.concatenate(columns, axis=1)
-    motion[np.abs(motion) < 5e-7] = 0.0  # no "-0.000000"
-    buf = io.StringIO()
-    np.savetxt(buf, motion, fmt="%.6f", delimiter=" ")
-    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / float(fps):.8f}"]
-    return "\n".join(lines) + "\n" + buf.getvalue()
 
 
-def bvh_from_clip(clip: dict, character: int, source: str = "clip") -> tuple[Rig, str]:
-    """(rig, BVH text) of the clip's character with original index `character`."""
+def bvh_from_clip(clip: dict, character, source: str = "clip") -> tuple[Rig, str]:
+    """(rig, BVH text) of the clip's character with original index `character`; a list of indices
+    gives one ROOT per character, its joint names prefixed "c<K>_" (K the character's index)."""
     index = np.asarray(clip["characters_index"])
-    hit = np.flatnonzero(index == character)
-    if hit.size == 0:
-        shown = f"0..{len(index) - 1}" if np.array_equal(index, np.arange(len(index))) else str(index.tolist()[:10])
-        raise ValueError(f"--character: {source} holds characters {shown} (got {character})")
-    i = int(hit[0])
+    many = not isinstance(character, (int, np.integer))
+    wanted = [int(k) for k in character] if many else [int(character)]
+    picked = []
+    for k in wanted:
+        hit = np.flatnonzero(index == k)
+        if hit.size == 0:
+            shown = f"0..{len(index) - 1}" if np.array_equal(index, np.arange(len(index))) else str(index.tolist()[:10])
+            raise ValueError(f"--character{'s' if many else ''}: {source} holds characters {shown} (got {k})")
+        picked.append(int(hit[0]))
     rig = rig_from_arrays(clip, "characters", source)
-    text = bvh_text(rig, clip["characters_root"][:, i], clip["characters_yaw"][:, i],
-                    clip["characters_angles"][:, i], float(clip["fps"]))
-    return rig, text
+    root, yaw, angles = (clip[f"characters_{key}"][:, picked] for key in ("root", "yaw", "angles"))
+    if many:
+        return rig, bvh_text(rig, root, yaw, angles, float(clip["fps"]), [f"c{k}_" for k in wanted])
+    return rig, bvh_text(rig, root[:, 0], yaw[:, 0], angles[:, 0], float(clip["fps"]))
 
 
 __all__ = ["ClipRecorder", "record_clip", "save_clip", "load_clip", "clip_joint_positions", "clip_bytes",

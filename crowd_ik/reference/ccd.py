@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.reference.fk import forward_kinematics, yaw_quat
-from crowd_ik.reference.quat import (
+from crowd_ik.geometry.fk import forward_kinematics, yaw_quat
+from crowd_ik.geometry.quat import (
     axis_angle, euler_xyz_to_quat, joint_angles, joint_quat, qconj, qmul, qrot, quat_to_euler_xyz, twist_angle,
     wrap_angle,
 )

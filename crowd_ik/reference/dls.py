@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.reference.fk import forward_kinematics
-from crowd_ik.reference.quat import (
+from crowd_ik.geometry.fk import forward_kinematics
+from crowd_ik.geometry.quat import (
     axis_angle, constrain_rotation, joint_angles, joint_quat, qconj, qmul, qnormalize, qrot, quat_to_euler_xyz,
 )
 from crowd_ik.rig import Rig

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.reference.quat import (
+from crowd_ik.geometry.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle,
 )
-from crowd_ik.reference.fk import yaw_quat
+from crowd_ik.geometry.fk import yaw_quat
 from crowd_ik.rig import Rig
 
 # The solver's constants live in crowd_ik/solvers/settings.py, shared with kernels/fabrik.py.
@@ -285,7 +285,7 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world; weights (N, E); orientations (N, E, 3) or None.
     """
-    from crowd_ik.reference.fk import forward_kinematics
+    from crowd_ik.geometry.fk import forward_kinematics
 
     rot = np.array(rot, np.float64)
     root_pos = np.asarray(root_pos, np.float64)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.geometry.sweep import point_segment_distance, sweep_toi  # noqa: F401  (the tests' too)
+
 NO_HIT = np.iinfo(np.int64).max
 TOI_BITS = 24
 
@@ -97,55 +99,6 @@ def reachable_owners(owner_box, owner_alive, mask, ox, oz, cell, nx, nz):
     in_z = (iz >= k0[:, None]) & (iz <= k1[:, None])  # (N, nz)
     hit = np.any(in_z[:, :, None] & in_x[:, None, :] & marked[None], axis=(1, 2))
     return (hit & (np.asarray(owner_alive) != 0)).astype(np.int32)
-
-def point_segment_distance(p, a, b):
-    """Distance from points p to segments [a, b] (broadcast over leading axes)."""
-    e = b - a
-    ee = np.sum(e * e, axis=-1)
-    u = np.where(ee > 0, np.sum((p - a) * e, axis=-1) / np.where(ee > 0, ee, 1.0), 0.0)
-    return np.linalg.norm(p - (a + np.clip(u, 0.0, 1.0)[..., None] * e), axis=-1)
-
-
-def _sphere_entry(p0, d, c, r):
-    m = p0 - c
-    A = np.sum(d * d, axis=-1)
-    B = np.sum(m * d, axis=-1)
-    C = np.sum(m * m, axis=-1) - r * r
-    disc = B * B - A * C
-    ok = (A > 0) & (disc >= 0)
-    t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, A, 1.0)
-    return np.where(ok & (t >= 0.0), t, np.inf)
-
-
-def _cylinder_entry(p0, d, a, e, r):
-    ee = np.sum(e * e, axis=-1)
-    safe = np.where(ee > 0, ee, 1.0)[..., None]
-    m = p0 - a
-    mp = m - np.sum(m * e, axis=-1)[..., None] / safe * e
-    dp = d - np.sum(d * e, axis=-1)[..., None] / safe * e
-    A = np.sum(dp * dp, axis=-1)
-    B = np.sum(mp * dp, axis=-1)
-    C = np.sum(mp * mp, axis=-1) - r * r
-    disc = B * B - A * C
-    ok = (ee > 0) & (A > 0) & (C > 0) & (disc >= 0)
-    t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(ok, A, 1.0)
-    u = np.sum((m + t[..., None] * d) * e, axis=-1) / safe[..., 0]
-    return np.where(ok & (t >= 0.0) & (u >= 0.0) & (u <= 1.0), t, np.inf)
-
-
-def sweep_toi(p0, p1, a, b, r):
-    """Smallest t in [0, 1] with dist(p0 + t (p1 - p0), [a, b]) <= r, else -1 (broadcast, analytic).
-
-    The capsule is the union of its lateral cylinder and its two end spheres; a point starting
-    outside enters the union when it first enters one of them: the smaller root of each quadratic.
-    """
-    p0, p1, a, b, r = (np.asarray(x, np.float64) for x in (p0, p1, a, b, r))
-    d = p1 - p0
-    t = np.minimum(np.minimum(_sphere_entry(p0, d, a, r), _sphere_entry(p0, d, b, r)),
-                   _cylinder_entry(p0, d, a, b - a, r))
-    t = np.where(t <= 1.0, t, -1.0)
-    return np.where(point_segment_distance(p0, a, b) <= r, 0.0, t)
-
 
 def collide(prev, pos, alive, bullet_radius, a, b, radius, owner, char_alive, n_chars):
     """Brute-force hits of one step against capsules in their end-of-step pose (a, b).

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.reference.quat import axis_angle, joint_angles, joint_quat, qmul, qrot
+from crowd_ik.geometry.quat import axis_angle, joint_angles, joint_quat, qmul, qrot
 from crowd_ik.rig import Rig
 
 

@@ -1,0 +1,184 @@
+"""Characters: the crowd that dodges - its Crowd, who is standing, and each one's dodge.
+
+Each world step (DESIGN "Game rules"): every standing character asks the bullets for the first
+one that will pass within THREAT_REACH of its chest within THREAT_HORIZON seconds and, once that
+is within its own reflex time, dodges it: a lean away from the bullet's line, a duck under
+head-high bullets (for those who prefer it) and a hand guard. The dodge is low-passed (fast while
+it grows, slow while it relaxes), moves the pelvis and becomes IK targets for head and hands while
+the feet stay planted (one kernel, `game_kernels.dodge_targets`), then one batched solve. A dodge
+is counted when a tracked bullet goes past the chest (or stops past it) without hitting.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from crowd_ik.game import streams
+from crowd_ik.game.body import LEG_SLACK, Body
+from crowd_ik.game.layout import character_layout
+from crowd_ik.game.limbs import Limbs
+from crowd_ik.geometry.vectors import UP, normalize
+
+THREAT_HORIZON = 0.7  # s: how far ahead bullets are predicted
+THREAT_REACH = 0.7  # m: a bullet passing this close to the chest is a threat (and, if it misses, a dodge)
+REFLEX_RANGE = (0.12, 0.65)  # s: each character starts dodging this long before the closest approach
+CLEAR_HALF_WIDTH = 0.42  # m: lateral distance from the bullet line that clears the shoulders
+MAX_LEAN = 0.42  # m: largest lean of the head away from a bullet line
+MAX_DUCK = 0.32  # m: deepest duck
+MAX_PELVIS_SHIFT = 0.16  # m
+HEAD_LEVEL = 1.42  # m: bullets above this height are ducked under (by characters that prefer it)
+TAU_ATTACK = 0.06  # s: low-pass time constant while a dodge builds up
+TAU_RELEASE = 0.35  # s: ... and while it relaxes back to the stance
+GREY = (0.80, 0.95)  # the characters' shades of grey
+
+
+def lowpass(current: np.ndarray, desired: np.ndarray, magnitude_now, magnitude_desired, dt: float) -> np.ndarray:
+    """One step of a first-order filter, fast while the magnitude grows and slow while it shrinks."""
+    tau = np.where(magnitude_desired > magnitude_now, TAU_ATTACK, TAU_RELEASE)
+    k = 1.0 - np.exp(-dt / tau)
+    if current.ndim > k.ndim:
+        k = k[..., None]
+    return (current + (desired - current) * k).astype(np.float32)
+
+
+class Characters:
+    """N characters of `body`'s rig: layout, Crowd, limbs, standing flags and dodge state."""
+
+    def __init__(self, body: Body, scene):
+        from crowd_ik.crowd import Crowd
+
+        b = self.body = body
+        self.scene = scene
+        self.seed = scene.seed
+        N, E = scene.characters.count, b.rig.n_effectors
+        self.n = N
+        self.ground, self.yaw = character_layout(scene)  # (N, 3) y = 0, (N,)
+        self.roots = self.ground + np.float32([0.0, b.rest_root_y, 0.0])
+        self.crowd = Crowd(b.rig, n=N, seed=scene.seed)
+        self.crowd.set_angles(b.stance)
+        self.crowd.set_roots(self.roots, self.yaw)
+        self.rest_targets = b.rest_targets(self.ground, self.yaw)  # (N, E, 3)
+        self.planted = self.rest_targets[:, b.planted].copy()  # (N, 2, 3) ankles, world
+        # the point threats are measured from: the chest (a chain's middle joint)
+        self.ref_points = np.ascontiguousarray(b.point(b.chest, self.ground, self.yaw), np.float32)
+        self.alive = np.ones(N, bool)
+        idx = np.arange(N)
+        self.reflex = (REFLEX_RANGE[0] + (REFLEX_RANGE[1] - REFLEX_RANGE[0])
+                       * streams.rand(self.seed, streams.CHARACTER, idx, 0)).astype(np.float32)
+        self.prefers_duck = streams.rand(self.seed, streams.CHARACTER, idx, 1) < 0.5
+        lo, hi = GREY
+        grey = lo + (hi - lo) * streams.rand(self.seed, streams.CHARACTER, idx, 2)
+        self.colors = np.repeat(grey[:, None], 3, axis=1).astype(np.float32)  # (N, 3) BGR
+        self.lean = np.zeros((N, 3), np.float32)  # low-passed dodge state
+        self.duck = np.zeros(N, np.float32)
+        self.guard = np.zeros(N, np.float32)
+        self.threat = None  # the last step's Threats, for inspection
+        self.dodges = 0
+        self.hits = 0
+        self.last_report = None  # the SolveReport of the last world step
+        self._tracked = np.full(N, -1, np.int32)  # bullet slot that threatens each character
+        self._tracked_serial = np.full(N, -1, np.int64)
+        self._orient = np.ascontiguousarray(np.broadcast_to(b.orient, (N, E, 3)), np.float32)
+        self._weights = np.ascontiguousarray(np.broadcast_to(b.weights, (N, E)), np.float32)
+        # dodge_targets' per-rig arguments (placeholders where a chain has no hips or hands) and outputs
+        slot = np.full(E, -1, np.int32)
+        slot[b.planted] = np.arange(int(b.planted.sum()), dtype=np.int32)
+        self._dodge_consts = (
+            b.lean.astype(np.float32), b.duck.astype(np.float32), slot,
+            (b.hands if len(b.hands) else np.full(1, -1)).astype(np.int32),
+            (b.hip_offset if b.humanoid else np.zeros((1, 3))).astype(np.float32),
+            int(b.humanoid), b.pelvis_share, MAX_PELVIS_SHIFT, LEG_SLACK * b.leg_length if b.humanoid else 1.0, b.scale,
+        )
+        self._planted_arg = self.planted if b.humanoid else np.zeros((N, 1, 3), np.float32)
+        self._targets_buf = np.zeros((N, E, 3), np.float32)
+        self._roots_buf = np.zeros((N, 3), np.float32)
+        self.limbs = Limbs(b, N, self.crowd)
+
+    @property
+    def joints(self) -> np.ndarray:
+        """(N, J, 3) float32 world joints after the last world step (the limbs' host copy)."""
+        return self.limbs.joints
+
+    def dodge(self, bullets, dt: float) -> None:
+        """Threats from `bullets` (game.bullets.Bullets) -> dodge bookkeeping -> the low-passed dodge."""
+        b = self.body
+        scale = b.scale
+        alive_i = self.alive.astype(np.int32)
+        thr = bullets.pool.threats(self.ref_points, alive_i, THREAT_HORIZON, THREAT_REACH * scale)
+        self.threat = thr
+        # 1. tracked bullets that went past their character are dodges; ones that stopped short are dropped
+        tr = self._tracked
+        idx = np.flatnonzero((tr >= 0) & self.alive)
+        if idx.size:
+            p = tr[idx]
+            same = bullets.serial[p] == self._tracked_serial[idx]
+            rel = self.ref_points[idx] - bullets.pos[p]
+            past = np.einsum("ij,ij->i", rel, bullets.vel[p]) <= 0.0
+            dodged = same & past
+            self.dodges += int(dodged.sum())
+            done = dodged | ~same | (~bullets.alive[p] & ~past)
+            tr[idx[done]] = -1
+        # 2. new close passes are tracked
+        close = (tr < 0) & self.alive & (thr.bullet >= 0) & (thr.time < THREAT_HORIZON)
+        tr[close] = thr.bullet[close]
+        self._tracked_serial[close] = bullets.serial[thr.bullet[close]]
+        # 3. the dodge each character wants now
+        react = self.alive & (thr.bullet >= 0) & (thr.time <= self.reflex)
+        lean_goal = np.zeros_like(self.lean)
+        duck_goal = np.zeros_like(self.duck)
+        guard_goal = np.zeros_like(self.guard)
+        i = np.flatnonzero(react)
+        if i.size:
+            d = thr.direction[i]
+            m = self.ref_points[i] - thr.point[i]  # from the bullet's closest point to the chest
+            side = normalize(np.cross(UP, d) * [1.0, 0.0, 1.0], fallback=(1.0, 0.0, 0.0))
+            along = np.einsum("ij,ij->i", m, side)
+            coin = streams.rand(self.seed, streams.SIDE, i, bullets.serial[thr.bullet[i]]) < 0.5
+            sign = np.where(np.abs(along) > 0.02 * scale, np.sign(along), np.where(coin, 1.0, -1.0))
+            height = thr.point[i, 1] - self.ground[i, 1]
+            head_high = height > HEAD_LEVEL * scale
+            ducks = head_high & self.prefers_duck[i] & b.humanoid
+            clear = (CLEAR_HALF_WIDTH * scale + self.scene.bullets.radius) - np.abs(along)
+            lean = np.clip(clear, 0.0, MAX_LEAN * scale) * np.where(ducks, 0.4, 1.0)
+            head_top = (b.rest_pos[b.head, 1] + 0.12 * scale) if b.humanoid else b.rest_pos[:, 1].max() + 0.05
+            duck = np.where(ducks, np.clip(head_top + 0.05 * scale - height, 0.0, MAX_DUCK * scale), 0.0)
+            if not b.humanoid:  # a chain dodges by bending: duck for anything above its middle
+                duck = np.where(height > 0.5 * head_top, np.clip(head_top - height + 0.3, 0.0, MAX_DUCK * scale), 0.0)
+            lean_goal[i] = side * (sign * lean)[:, None]
+            duck_goal[i] = duck
+            guard_goal[i] = np.where(head_high, 1.0, 0.0)
+        mag_now = np.linalg.norm(self.lean, axis=1) + self.duck
+        mag_goal = np.linalg.norm(lean_goal, axis=1) + duck_goal
+        self.lean = lowpass(self.lean, lean_goal, mag_now, mag_goal, dt)
+        self.duck = lowpass(self.duck, duck_goal, mag_now, mag_goal, dt)
+        self.guard = lowpass(self.guard, guard_goal, mag_now, mag_goal, dt)
+
+    def solve(self) -> float:
+        """The dodge -> roots and IK targets (one kernel), one batched solve, the limbs; returns the
+        solve's milliseconds (0 when nobody is standing: no solve)."""
+        if not self.alive.any():
+            return 0.0
+        from crowd_ik.kernels import game_kernels as gk
+
+        f32 = np.float32
+        targets, roots = self._targets_buf, self._roots_buf
+        gk.dodge_targets(self.rest_targets, np.ascontiguousarray(self.lean, f32), np.ascontiguousarray(self.duck, f32),
+                         np.ascontiguousarray(self.guard, f32), self.roots, self.yaw, self._planted_arg,
+                         self.ref_points, *self._dodge_consts, targets, roots)
+        weights = self._weights * self.alive[:, None]
+        t0 = time.perf_counter()
+        self.crowd.set_roots(roots, self.yaw)
+        sv = self.scene.solver
+        self.last_report = self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations,
+                                            tolerance=sv.tolerance, weights=weights, orientations=self._orient)
+        ms = 1e3 * (time.perf_counter() - t0)
+        self.limbs.update()
+        return ms
+
+    def struck(self, chars: np.ndarray) -> None:
+        """Characters `chars` were hit: they fall (stop dodging and being drawn)."""
+        self.alive[chars] = False
+        self._tracked[chars] = -1
+        self.hits += len(chars)
