@@ -23,6 +23,8 @@ _LAZY = {
     "Scene": ("crowd_ik.scene", "Scene"),
     "World": ("crowd_ik.game.world", "World"),
     "planar": ("crowd_ik.planar", None),
+    "load_bvh": ("crowd_ik.io.bvh", "load_bvh"),
+    "animate": ("crowd_ik.animation", "animate"),
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -1,4 +1,4 @@
-"""Command line: `crowd-ik play | mouse | bench | export | scenes`.
+"""Command line: `crowd-ik play | mouse | bench | export | animate | scenes`.
 
 Each subcommand's work lives in its own module (play.py, mouse.py, bench.py, export.py, scene.py);
 this file only declares the arguments and maps errors to exit codes:
@@ -18,7 +18,7 @@ import sys
 import threading
 
 from crowd_ik import __version__
-from crowd_ik.solvers.registry import METHODS, PLANAR_DEFAULT, PLANAR_METHODS
+from crowd_ik.solvers.registry import DEFAULT, METHODS, PLANAR_DEFAULT, PLANAR_METHODS
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 
@@ -138,8 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--frame", type=int, default=0, help="frame to export as .glb (default 0)")
     export.add_argument("-o", "--output", default=None, help="OUT.glb")
     export.add_argument("--bvh", default=None, metavar="OUT.bvh", help="write one character's motion as BVH")
-    export.add_argument("--character", type=int, default=0, help="character index for --bvh (default 0)")
-    export.add_argument("--frames", type=int, default=None, help="frames of motion for --bvh")
+    export.add_argument("--character", type=int, default=None, help="character index for --bvh (default 0)")
+    export.add_argument("--characters", default=None, metavar="all|K,L,...",
+                        help="several characters: --bvh writes one ROOT each; --animated .glb (default all)")
+    export.add_argument("--animated", action="store_true",
+                        help="-o F.glb: the characters' motion over --frames as an animated, skinned .glb")
+    export.add_argument("--frames", type=int, default=None, help="frames of motion for --bvh or --animated")
     export.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_common_runtime(export)
     export.set_defaults(handler="crowd_ik.commands.export:run")
@@ -157,6 +161,24 @@ def build_parser() -> argparse.ArgumentParser:
     many.add_argument("--threads", type=int, default=None,
                       help="CPU threads per worker (default: local cores / workers; 1 on a cluster)")
     many.set_defaults(handler="crowd_ik.commands.render_many:run")
+
+    animate = sub.add_parser("animate", help="play a BVH clip on a crowd with IK on top (feet planted) and render it")
+    animate.add_argument("clip", metavar="CLIP.bvh", help="motion clip (BVH; any channel order, m or cm)")
+    animate.add_argument("-o", "--output", default=None, help="OUT.mp4 | OUT.webm | DIR/ (default: ./<clip>.mp4)")
+    animate.add_argument("--count", type=int, default=1, help="characters (default 1)")
+    animate.add_argument("--spacing", type=float, default=1.5, help="metres between characters (default 1.5)")
+    animate.add_argument("--stagger", type=float, default=0.0, metavar="SECONDS",
+                         help="each character plays the clip this much later than the previous (default 0)")
+    animate.add_argument("--blend", default=None, metavar="foot_l=1,hand_l=0.5",
+                         help="per effector, 0 = the clip, 1 = the IK target (default: feet 1, others 0)")
+    animate.add_argument("--solver", choices=METHODS, default=DEFAULT, help=f"IK method (default {DEFAULT})")
+    animate.add_argument("--frames", type=int, default=None, help="video frames (default: the clip's)")
+    animate.add_argument("--size", default="1280x720", metavar="WxH", help="frame size (default 1280x720)")
+    animate.add_argument("--units", choices=("auto", "m", "cm"), default="auto",
+                         help="the clip's length unit (default auto: cm when the skeleton is taller than 10)")
+    animate.add_argument("--force", action="store_true", help="overwrite an existing output")
+    _add_common_runtime(animate)
+    animate.set_defaults(handler="crowd_ik.commands.animate:run")
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes, or check one and print its effective values")
     scenes.add_argument("file", nargs="?", default=None, help="scene TOML to check")
