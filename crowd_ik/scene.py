@@ -138,12 +138,12 @@ class _Float:
             raise _Bad("must be a finite number") from None
         if not math.isfinite(x):
             raise _Bad("must be a finite number")
-        if abs(x) > FLOAT32_MAX:
-            raise _Bad("must be finite in float32 (|x| <= 3.4e38)")
         if self.lo is not None and (x <= self.lo if self.lo_open else x < self.lo):
             raise _Bad(self._range())
         if self.hi is not None and (x >= self.hi if self.hi_open else x > self.hi):
             raise _Bad(self._range())
+        if abs(x) > FLOAT32_MAX:
+            raise _Bad("must be finite in float32 (|x| <= 3.4e38)")
         return x
 
 
@@ -248,7 +248,7 @@ class Bullets:
     speed: float = _key(25.0, _Float(0, MAX_SPEED, unit=" m/s"), "muzzle speed, metres per second")
     radius: float = _key(0.03, _Float(0, MAX_EXTENT, unit=" m"), "collision radius, metres")
     gravity: float = _key(9.81, _Float(0, lo_open=False), "downward acceleration, metres per second squared")
-    drag: float = _key(0.0, _Float(0, lo_open=False), "linear drag coefficient, 1 per second")
+    drag: float = _key(0.0, _Float(0, lo_open=False), "quadratic drag coefficient: dv/dt = -drag |v| v, 1 per metre")
     pool_size: int = _key(4096, _Int(1, MAX_POOL_SIZE), "bullet slots allocated once")
     lifetime: float = _key(3.0, _Float(0), "seconds of world time before a bullet is retired")
 

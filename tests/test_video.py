@@ -269,7 +269,9 @@ def test_real_ctrl_c_on_the_process_group_finalises_the_video(tmp_path):
     import sys
 
     script = (
-        "import sys, numpy as np\n"
+        "import signal, sys, numpy as np\n"
+        # a pytest started with SIGINT ignored (a background job, nohup) passes that on to its children
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "from crowd_ik.io.video import open_sink\n"
         f"with open_sink(sys.argv[1], 24, ({W}, {H})) as sink:\n"
         "    i = 0\n"
