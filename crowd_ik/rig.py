@@ -242,6 +242,22 @@ class Rig:
         )
         return cls(tuple(joints), effectors, dim=3, name="humanoid")
 
+    @classmethod
+    def from_gltf(cls, path, effectors=None) -> "Rig":
+        """The joint tree of a .glb/.gltf file's skin, at the file's rest pose (crowd_ik.io.gltf)."""
+        from crowd_ik.io.gltf import read_gltf_tree
+
+        return cls.from_tree(read_gltf_tree(path, effectors))
+
+    @classmethod
+    def from_tree(cls, tree) -> "Rig":
+        """A rig from a joint tree read from a file (crowd_ik.io.skeleton.Tree); problems name the file."""
+        try:
+            joints = tuple(Joint(n, p, o, k, a, radius=r) for n, p, o, k, a, r in tree.joints)
+            return cls(joints, tuple(Effector(n, j) for n, j in tree.effectors), name=tree.name)
+        except ValueError as exc:
+            raise ValueError(f"{tree.source}: {exc}") from None
+
     # ---------------------------------------------------------------- queries
     @property
     def n_joints(self) -> int:

@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crowd_ik.io.clip import axis_matrix, matrix_to_euler
-from crowd_ik.io.skeleton import build_rig, forward
+from crowd_ik.io.skeleton import axis_matrix, forward, make_tree, matrix_to_euler
 from crowd_ik.rig import MAX_EXTENT, Rig
 
 UNITS = {"m": 1.0, "cm": 0.01}
@@ -314,7 +313,7 @@ def _build(path: str, nodes: list[_Node], start: int, values: np.ndarray, frame_
         raise ValueError(f"{path}:{nodes[0].line}: the skeleton or its motion reaches {extent:g} m "
                          f"(limit {MAX_EXTENT:g} m; wrong units?)")
     names = [n.name for n in nodes]
-    rig = build_rig(names, parents, offsets, kinds, axes, effectors, Path(path).stem, path)
+    rig = Rig.from_tree(make_tree(names, parents, offsets, kinds, axes, effectors, Path(path).stem, path))
     angles = np.zeros((F, rig.n_dof))
     for j, joint in enumerate(rig.joints):
         s = int(rig.dof_start[j])

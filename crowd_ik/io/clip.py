@@ -49,6 +49,7 @@ import numpy as np
 
 from crowd_ik.geometry import fk as ref_fk
 from crowd_ik.geometry.quat import qmul, qrot
+from crowd_ik.io.skeleton import axis_matrix, matrix_to_euler
 from crowd_ik.rig import Joint, Rig
 
 FORMAT = "crowd_ik.clip/1"
@@ -284,41 +285,10 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     ], -2)
 
 
-def axis_matrix(axis: str, angle: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotation about the world axis 'X', 'Y' or 'Z' by angle (...) radians."""
-    angle = np.asarray(angle, np.float64)
-    c, s = np.cos(angle), np.sin(angle)
-    o, z = np.ones_like(angle), np.zeros_like(angle)
-    rows = {
-        "X": [[o, z, z], [z, c, -s], [z, s, c]],
-        "Y": [[c, z, s], [z, o, z], [-s, z, c]],
-        "Z": [[c, -s, z], [s, c, z], [z, z, o]],
-    }[axis]
-    return np.stack([np.stack(r, -1) for r in rows], -2)
-
-
 def euler_to_matrix(angles: np.ndarray, order: str) -> np.ndarray:
     """(..., 3) radians, intrinsic in `order` (R = R_order[0] R_order[1] R_order[2]) -> (..., 3, 3)."""
     a = np.asarray(angles, np.float64)
     return axis_matrix(order[0], a[..., 0]) @ axis_matrix(order[1], a[..., 1]) @ axis_matrix(order[2], a[..., 2])
-
-
-def matrix_to_euler(R: np.ndarray, order: str) -> np.ndarray:
-    """(..., 3, 3) rotations -> (..., 3) radians, intrinsic in `order` (three different axes).
-
-    The middle angle is in [-pi/2, pi/2]; at gimbal lock (middle angle +-pi/2) the third is 0.
-    """
-    i, j, k = ("XYZ".index(c) for c in order)
-    if len({i, j, k}) != 3:
-        raise ValueError(f"matrix_to_euler: order must name three different axes (got {order!r})")
-    s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
-    R = np.asarray(R, np.float64)
-    cos_b = np.hypot(R[..., i, i], R[..., i, j])
-    b = np.arctan2(s * R[..., i, k], cos_b)
-    lock = cos_b < 1e-9
-    a = np.where(lock, np.arctan2(s * R[..., k, j], R[..., j, j]), np.arctan2(-s * R[..., j, k], R[..., k, k]))
-    c = np.where(lock, 0.0, np.arctan2(-s * R[..., i, j], R[..., i, i]))
-    return np.stack([a, b, c], -1)
 
 
 # ------------------------------------------------------------------------------------------------

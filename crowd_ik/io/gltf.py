@@ -1,4 +1,4 @@
-"""glTF in and out: a Rig from a file's skin (``Rig.from_gltf``), and an animated .glb of bodies moving.
+"""glTF in and out: a file's skin as a joint tree (``Rig.from_gltf``), and an animated .glb of bodies moving.
 
 Reading (pygltflib): the one skin's joints become the rig's joints, in depth-first order of the node
 tree (parents first); a joint's parent is its nearest ancestor among the skin's joints. The rest pose is
@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crowd_ik.io.skeleton import build_rig, joint_matrices, matrix_to_quat, yaw_matrix
-from crowd_ik.rig import Rig
+from crowd_ik.io.skeleton import Tree, joint_matrices, make_tree, matrix_to_quat, yaw_matrix
 
 TEMPLATE_COUNT = (8, 8)  # template capsule resolution (trimesh count): 66 vertices a capsule
 BODY_COLOR = (0.55, 0.62, 0.75, 1.0)  # RGBA base colour of the animated bodies
@@ -125,8 +124,8 @@ def _tree(path: str, gltf) -> list[int]:
     return parent
 
 
-def load_gltf_rig(path, effectors=None) -> Rig:
-    """The rig of a .glb/.gltf file's skin (see the module docstring)."""
+def read_gltf_tree(path, effectors=None) -> Tree:
+    """The joint tree of a .glb/.gltf file's skin, for Rig.from_tree (see the module docstring)."""
     import pygltflib
 
     path = os.fspath(path)
@@ -188,7 +187,7 @@ def load_gltf_rig(path, effectors=None) -> Rig:
     offsets = np.array([rest[k] - (rest[p] if p >= 0 else 0.0) for k, p in enumerate(parents)])
     has_child = set(parents)
     kinds = ["ball" if k in has_child else "fixed" for k in range(len(order))]
-    return build_rig(names, parents, offsets, kinds, [()] * len(order), effectors, Path(path).stem, path)
+    return make_tree(names, parents, offsets, kinds, [()] * len(order), effectors, Path(path).stem, path)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -317,4 +316,4 @@ def write_animated_glb(path, rig: Rig, root, yaw, angles, fps: float, names, for
     return write_bytes(path, animated_glb(rig, root, yaw, angles, fps, names), force=force)
 
 
-__all__ = ["load_gltf_rig", "animated_glb", "write_animated_glb", "capsule_vertices", "TEMPLATE_COUNT"]
+__all__ = ["read_gltf_tree", "animated_glb", "write_animated_glb", "capsule_vertices", "TEMPLATE_COUNT"]

@@ -1,5 +1,6 @@
-"""Joint trees read from files (BVH, glTF) made into Rigs, and the host rotation maths their readers and
-writers share: effectors found by name, zero-length bones, joint angles <-> rotation matrices, FK.
+"""Joint trees read from files (BVH, glTF) as plain data for ``Rig.from_tree``, and the host rotation maths
+their readers and writers share: effectors found by name, zero-length bones, joint angles <-> rotation
+matrices, FK. (No import of crowd_ik.rig: Rig.from_gltf imports the glTF reader, which imports this.)
 
 Effectors: head, hand_l, hand_r, foot_l, foot_r (in that order, as Rig.humanoid) when every one of them
 matches a joint name (case-insensitive words: "LeftHand", "hand_l", "l_wrist", "mixamorig:RightFoot",
@@ -15,11 +16,10 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 
 import numpy as np
 
-from crowd_ik.io.clip import axis_matrix, matrix_to_euler
-from crowd_ik.rig import Effector, Joint, Rig
 
 ZERO_BONE = 1e-6  # metres: the length a zero offset is given
 HUMANOID_EFFECTORS = ("head", "hand_l", "hand_r", "foot_l", "foot_r")
@@ -53,9 +53,9 @@ def _match(name: str, part: str, side: str | None) -> tuple[int, int] | None:
     return rank, len(words)
 
 
-def find_effectors(names: list[str], leaves: list[int], given, source: str) -> tuple[Effector, ...]:
+def find_effectors(names: list[str], leaves: list[int], given, source: str) -> tuple[tuple[str, int], ...]:
     """The rig's effectors (see the module docstring). given: None, a list of joint names, or a mapping
-    {effector name: joint name}."""
+    {effector name: joint name}. Returns (effector name, joint index) pairs."""
     index = {n: j for j, n in reversed(list(enumerate(names)))}
     if given is not None:
         pairs = list(given.items()) if isinstance(given, dict) else [(n, n) for n in given]
@@ -66,7 +66,7 @@ def find_effectors(names: list[str], leaves: list[int], given, source: str) -> t
             if not isinstance(joint, str) or joint not in index:
                 shown = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
                 raise ValueError(f"{source}: effectors: no joint named {joint!r} (joints: {shown})")
-            out.append(Effector(str(eff), index[joint]))
+            out.append((str(eff), index[joint]))
         return tuple(out)
     found = []
     for eff in HUMANOID_EFFECTORS:
@@ -74,14 +74,25 @@ def find_effectors(names: list[str], leaves: list[int], given, source: str) -> t
         scored = [(m, j) for j, n in enumerate(names) if (m := _match(n, part, side or None)) is not None]
         if not scored:
             break
-        found.append(Effector(eff, min(scored)[1]))
-    if len(found) == len(HUMANOID_EFFECTORS) and len({e.joint for e in found}) == len(found):
+        found.append((eff, min(scored)[1]))
+    if len(found) == len(HUMANOID_EFFECTORS) and len({j for _, j in found}) == len(found):
         return tuple(found)
-    return tuple(Effector(names[j], j) for j in leaves)
+    return tuple((names[j], j) for j in leaves)
 
 
-def build_rig(names, parents, offsets, kinds, axes, effectors, name: str, source: str) -> Rig:
-    """A Rig from joint data in topological order (offsets in metres; zero ones become ZERO_BONE). Each
+@dataclass(frozen=True)
+class Tree:
+    """A joint tree read from a file: joints (name, parent, offset metres, kind, axes, radius) in topological
+    order, effectors (name, joint index), the rig's name and the file it came from (for error messages)."""
+
+    name: str
+    source: str
+    joints: tuple
+    effectors: tuple
+
+
+def make_tree(names, parents, offsets, kinds, axes, effectors, name: str, source: str) -> Tree:
+    """A Tree from joint data in topological order (offsets in metres; zero ones become ZERO_BONE). Each
     joint's radius (its limb's, from the parent) is a fifth of its bone, within 1.5-6 cm."""
     joints = []
     for j, joint_name in enumerate(names):
@@ -89,16 +100,26 @@ def build_rig(names, parents, offsets, kinds, axes, effectors, name: str, source
         if j > 0 and math.hypot(*off) == 0.0:
             off = (0.0, ZERO_BONE, 0.0)
         radius = 0.06 if j == 0 else min(max(0.2 * math.hypot(*off), 0.015), 0.06)
-        joints.append(Joint(joint_name, int(parents[j]), off, kinds[j], tuple(axes[j]), radius=radius))
+        joints.append((joint_name, int(parents[j]), off, kinds[j], tuple(axes[j]), radius))
     leaves = [j for j in range(len(names)) if j not in set(int(p) for p in parents)]
-    try:
-        return Rig(tuple(joints), find_effectors(list(names), leaves, effectors, source), name=name)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    return Tree(name, source, tuple(joints), find_effectors(list(names), leaves, effectors, source))
 
 
 # ------------------------------------------------------------------------------------------------
 # rotations
+
+
+def axis_matrix(axis: str, angle: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation about the world axis 'X', 'Y' or 'Z' by angle (...) radians."""
+    angle = np.asarray(angle, np.float64)
+    c, s = np.cos(angle), np.sin(angle)
+    o, z = np.ones_like(angle), np.zeros_like(angle)
+    rows = {
+        "X": [[o, z, z], [z, c, -s], [z, s, c]],
+        "Y": [[c, z, s], [z, o, z], [-s, z, c]],
+        "Z": [[c, -s, z], [s, c, z], [z, z, o]],
+    }[axis]
+    return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
 def axis_angle_matrix(axis, angle) -> np.ndarray:
@@ -123,24 +144,22 @@ def joint_matrices(rig: Rig, angles) -> np.ndarray:
     return out
 
 
-def matrices_to_angles(rig: Rig, local) -> np.ndarray:
-    """(F, J, 3, 3) local rotations -> (F, D) radians. Ball joints: intrinsic XYZ Euler; hinge and universal
-    joints whose axes are coordinate axes (as a BVH's channels): their Euler angles about those axes."""
-    local = np.asarray(local, np.float64)
-    out = np.zeros((local.shape[0], rig.n_dof))
-    for j, joint in enumerate(rig.joints):
-        s = int(rig.dof_start[j])
-        if joint.kind == "ball":
-            out[:, s : s + 3] = matrix_to_euler(local[:, j], "XYZ")
-        elif joint.kind in ("hinge", "universal"):
-            axes = np.asarray(joint.axes)
-            main = np.argmax(np.abs(axes), axis=1)
-            if not np.allclose(np.abs(axes[np.arange(len(axes)), main]), 1.0):
-                raise ValueError(f"joint {joint.name!r}: angles from matrices need axes along x, y or z (got {joint.axes})")
-            order = "".join("XYZ"[k] for k in main)
-            euler = matrix_to_euler(local[:, j], order + "".join(c for c in "XYZ" if c not in order))
-            out[:, s : s + joint.dof] = euler[:, : joint.dof] * axes[np.arange(len(axes)), main]
-    return out
+def matrix_to_euler(R: np.ndarray, order: str) -> np.ndarray:
+    """(..., 3, 3) rotations -> (..., 3) radians, intrinsic in `order` (three different axes).
+
+    The middle angle is in [-pi/2, pi/2]; at gimbal lock (middle angle +-pi/2) the third is 0.
+    """
+    i, j, k = ("XYZ".index(c) for c in order)
+    if len({i, j, k}) != 3:
+        raise ValueError(f"matrix_to_euler: order must name three different axes (got {order!r})")
+    s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
+    R = np.asarray(R, np.float64)
+    cos_b = np.hypot(R[..., i, i], R[..., i, j])
+    b = np.arctan2(s * R[..., i, k], cos_b)
+    lock = cos_b < 1e-9
+    a = np.where(lock, np.arctan2(s * R[..., k, j], R[..., j, j]), np.arctan2(-s * R[..., j, k], R[..., k, k]))
+    c = np.where(lock, 0.0, np.arctan2(-s * R[..., i, j], R[..., i, i]))
+    return np.stack([a, b, c], -1)
 
 
 def matrix_to_quat(R) -> np.ndarray:
@@ -185,5 +204,6 @@ def forward(rig: Rig, base, yaw, local) -> tuple[np.ndarray, np.ndarray]:
     return pos, rot
 
 
-__all__ = ["ZERO_BONE", "HUMANOID_EFFECTORS", "find_effectors", "build_rig", "axis_angle_matrix",
-           "joint_matrices", "matrices_to_angles", "matrix_to_quat", "yaw_matrix", "forward"]
+__all__ = ["ZERO_BONE", "HUMANOID_EFFECTORS", "Tree", "find_effectors", "make_tree", "axis_matrix", "matrix_to_euler",
+           "axis_angle_matrix",
+           "joint_matrices", "matrix_to_quat", "yaw_matrix", "forward"]
