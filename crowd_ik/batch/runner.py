@@ -142,8 +142,10 @@ def plan(jobs: list[Job], folder: str | os.PathLike, force: bool = False) -> Pla
         if not force:
             for path in (video, labels):
                 if path is not None and (path.exists() or path.is_symlink()):
-                    why = "was rendered from another version of this job" if rec is not None and rec.get("status") == "ok" \
-                        else "is not recorded as a complete render of this job"
+                    ok = rec is not None and rec.get("status") == "ok"
+                    why = ("is not recorded as a complete render of this job" if not ok
+                           else "does not match its record (size)" if rec.get("key") == job.key
+                           else "was rendered from another version of this job (its scene values changed)")
                     raise FileExistsError(f"{path} exists and {why} in {manifest.path}")
         todo.append(job)
     return Plan(out, todo, done, manifest)
@@ -251,14 +253,17 @@ def run_jobs(p: Plan, *, address: str | None = None, workers: int | None = None,
     report = Report(p)
     if not p.todo:
         return report
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGTERM) if main_thread else None  # ray.init installs its own
+    received: list[str] = []
     _start_ray(ray, address)
-    previous = None
-    if threading.current_thread() is threading.main_thread():
+    if main_thread:
         def on_sigterm(signum, frame):
             signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second one must not cut the clean-up short
+            received.append("SIGTERM")  # (inside ray.wait the exception arrives as a plain KeyboardInterrupt)
             raise _Terminated
 
-        previous = signal.signal(signal.SIGTERM, on_sigterm)
+        signal.signal(signal.SIGTERM, on_sigterm)
     actors: list = []
     try:
         n_workers, n_threads, cpus = _sizes(ray, address, workers, threads, len(p.todo))
@@ -317,7 +322,8 @@ def run_jobs(p: Plan, *, address: str | None = None, workers: int | None = None,
                     if failed:
                         bar.set_postfix_str(f"{failed} failed", refresh=False)
     except KeyboardInterrupt as exc:
-        report.interrupted = "SIGTERM" if isinstance(exc, _Terminated) or type(exc).__name__ == "Terminated" else "SIGINT"
+        terminated = received or isinstance(exc, _Terminated) or type(exc).__name__ == "Terminated"  # cli's own
+        report.interrupted = "SIGTERM" if terminated else "SIGINT"
     finally:
         for actor in actors:
             try:
