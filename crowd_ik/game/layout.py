@@ -9,9 +9,6 @@ import numpy as np
 from crowd_ik.game import streams
 from crowd_ik.scene import Scene
 
-RING_PHASES = (0.5, 0.0, 0.25, 0.75, 0.125, 0.375, 0.625, 0.875)  # in units of the shooters' spacing
-
-
 def character_layout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Roots (N, 3) on the ground and yaw (N,) of the characters: grid facing +z, ring facing the
     centre, random = a jittered grid (seeded) facing +z within +-60 degrees."""
@@ -37,32 +34,18 @@ def character_layout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return roots.astype(np.float32), yaw.astype(np.float32)
 
 
-def shooter_layout(scene: Scene, camera=None) -> tuple[np.ndarray, np.ndarray]:
+def shooter_layout(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """Roots (S, 3) on the ground and yaw (S,) of the shooters, facing the centre (a ring) or +z (a line).
 
-    ring: S places on a circle of shooters.radius, turned by the first of RING_PHASES that puts the
-    most shooters wholly in the camera's view (feet and head inside the frame), so that as many
-    as possible are seen shooting; line: 2 m apart at z = -radius.
+    ring: S places on a circle of shooters.radius, the first at angle pi / S (half a spacing from
+    +z), so that no shooter stands on the axis the default camera looks along; line: 2 m apart at
+    z = -radius. The layout depends on the scene alone, not on the camera.
     """
     s = scene.shooters
     k = np.arange(s.count)
     if s.placement == "line":
         roots = np.stack([(k - (s.count - 1) / 2.0) * 2.0, np.zeros(s.count), np.full(s.count, -s.radius)], axis=1)
         return roots.astype(np.float32), np.zeros(s.count, np.float32)
-    best, best_seen = RING_PHASES[0], -1
-    for phase in RING_PHASES if camera is not None else RING_PHASES[:1]:
-        theta = 2.0 * math.pi * (k + phase) / s.count
-        feet = np.stack([s.radius * np.sin(theta), np.zeros(s.count), s.radius * np.cos(theta)], axis=1)
-        if camera is None:
-            break
-        head = feet + [0.0, 1.8 * scene.characters.scale, 0.0]
-        inside = np.ones(s.count, bool)
-        for points in (feet, head):
-            pix, _ = camera.project(points)
-            inside &= ((pix[:, 0] >= 0) & (pix[:, 0] <= camera.width - 1)
-                       & (pix[:, 1] >= 0) & (pix[:, 1] <= camera.height - 1))
-        if int(inside.sum()) > best_seen:
-            best, best_seen = phase, int(inside.sum())
-    theta = 2.0 * math.pi * (k + best) / s.count
+    theta = 2.0 * math.pi * (k + 0.5) / s.count
     roots = np.stack([s.radius * np.sin(theta), np.zeros(s.count), s.radius * np.cos(theta)], axis=1)
     return roots.astype(np.float32), (theta + math.pi).astype(np.float32)

@@ -30,14 +30,14 @@ COLOR = (0.16, 0.14, 0.82)  # BGR: the shooters (and their shards) are red
 class Shooters:
     """S humanoid shooters: places, Crowd, joints, aim, fire schedule and who is still up."""
 
-    def __init__(self, body: Body, scene, camera):
+    def __init__(self, body: Body, scene):
         from crowd_ik.crowd import Crowd
 
         hb = self.body = body
         self.scene = scene
         self.seed = scene.seed
         S = self.n = scene.shooters.count
-        self.ground, self.yaw = shooter_layout(scene, camera)
+        self.ground, self.yaw = shooter_layout(scene)
         self.roots = self.ground + np.float32([0.0, hb.rest_root_y, 0.0])
         self.crowd = Crowd(hb.rig, n=S, seed=scene.seed)
         self.crowd.set_angles(hb.stance)

@@ -76,7 +76,7 @@ class World:
         cam = scene.camera
         self.camera = Camera(cam.position, cam.look_at, cam.fov_deg, scene.video.width, scene.video.height)
         self.characters = Characters(self.body, scene)
-        self.shooters = Shooters(self.hbody, scene, self.camera)
+        self.shooters = Shooters(self.hbody, scene)
         self.shooters.start(self.characters)
         self.player = Player(self.hbody, scene)
         # bullets: a pool over the arena's extent
