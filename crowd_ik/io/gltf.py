@@ -18,6 +18,7 @@ joint's rotation (LINEAR, t = k / fps). glTF viewers and Blender play it as it i
 from __future__ import annotations
 
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +125,21 @@ def _tree(path: str, gltf) -> list[int]:
     return parent
 
 
+def _check_glb_length(path: str) -> None:
+    """A binary .glb's 12-byte header states its length: refuse a file cut short (or padded)."""
+    with open(path, "rb") as fh:
+        head = fh.read(12)
+        size = fh.seek(0, os.SEEK_END)
+    if head[:4] != b"glTF":
+        return  # a JSON .gltf
+    if len(head) < 12:
+        raise ValueError(f"{path}: not a readable glTF file (a .glb header needs 12 bytes, got {len(head)})")
+    version, length = struct.unpack("<II", head[4:])
+    if version != 2 or length != size:
+        raise ValueError(f"{path}: not a readable glTF file (.glb version {version}, header says {length} bytes, "
+                         f"the file has {size}: truncated?)")
+
+
 def read_gltf_tree(path, effectors=None) -> Tree:
     """The joint tree of a .glb/.gltf file's skin, for Rig.from_tree (see the module docstring)."""
     import pygltflib
@@ -131,6 +147,7 @@ def read_gltf_tree(path, effectors=None) -> Tree:
     path = os.fspath(path)
     if not Path(path).is_file():
         raise FileNotFoundError(f"{path}: no such file")
+    _check_glb_length(path)
     try:
         gltf = pygltflib.GLTF2().load(path)
     except Exception as exc:  # pygltflib raises what its JSON, struct and dataclass layers raise
