@@ -1,0 +1,295 @@
+"""The DLS step's linear system (kernels/dls.py, steps 1-3 and 7 of its docstring): the objective F,
+the Jacobian rows and columns, and the damped solve by Cholesky in per-character scratch."""
+
+import taichi as ti
+
+from crowd_ik.kernels.quat import (
+    axis_angle, qconj, qmul, qrot, vec3, vec4,
+)
+from crowd_ik.solvers.settings import (
+    DLS_ORI_CLAMP as ORI_CLAMP,
+)
+
+from crowd_ik.kernels.dls_pose import (
+    FREE, G, MG, MP, Q_COM, Q_START, STEP, THETA, THETA0, has_orientation, parent_rot, perpendicular, qlog, swing_vector,
+)
+
+ndarray = ti.types.ndarray
+
+
+
+@ti.func
+def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(), dof_start: ti.template(),
+              eff_joint: ti.template(), eff_axis: ti.template(),
+              eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(), local_rot: ti.template(),
+              rel_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
+              weights: ti.template(), orient: ti.template(), work: ti.template(), qwork: ti.template(),
+              com_w: ti.template(), support_w: ti.template(), length, rest_w, vel_w, bal_w):
+    """(F, max position error, max(orientation error * L, balance error)) of character i's current pose.
+
+    F counts each position term as |t - p|^2 - beyond^2, beyond = max(|t - base| - reach, 0), the part
+    no pose can remove: the same minimiser and the same comparisons, but for a target out of reach it
+    is written as 2 |r| (reach - u.q) - (reach - |q|)(reach + |q|) (r = t - base, u = r / |r|,
+    q = p - base), which keeps float32 precision as the chain straightens (F itself stays large).
+    """
+    f = 0.0
+    perr = 0.0
+    oerr = 0.0
+    base = rel_pos[i, 0]
+    for e in range(eff_joint.shape[0]):
+        w = weights[i, e]
+        if w > 0.0:
+            k = eff_joint[e]
+            t = targets[i, e] - root_pos[i]
+            d = t - rel_pos[i, k]
+            perr = ti.max(perr, d.norm())
+            r = t - base
+            dist = r.norm()
+            reach = eff_lim[e, 0]
+            if dist > reach:
+                q = rel_pos[i, k] - base
+                qn = q.norm()
+                f += w * (2.0 * (dist * reach - r.dot(q)) - (reach - qn) * (reach + qn))
+            else:
+                f += w * d.norm_sqr()
+            if has_orientation(i, e, eff_has_axis, orient):
+                a = qrot(world_rot[i, k], eff_axis[e])
+                ang = length * swing_vector(a, orient[i, e]).norm()
+                f += w * ang * ang
+                oerr = ti.max(oerr, ang)
+    if rest_w > 0.0 or vel_w > 0.0:
+        for j in range(parent.shape[0]):
+            k = kind[j]
+            s = dof_start[j]
+            if k > 0:
+                if jmode[j] == 1:
+                    for c in range(k):
+                        th = work[i, THETA, s + c]
+                        dv = th - work[i, THETA0, s + c]
+                        f += rest_w * th * th + vel_w * dv * dv
+                else:
+                    q = local_rot[i, j]
+                    f += rest_w * qlog(q).norm_sqr() + vel_w * qlog(qmul(q, qconj(qwork[i, Q_START, j]))).norm_sqr()
+    if bal_w > 0.0:
+        b = vec3(0.0)  # c - s
+        for j in range(parent.shape[0]):
+            p = rel_pos[i, j]
+            mid = p
+            if parent[j] >= 0:
+                mid = 0.5 * (rel_pos[i, parent[j]] + p)
+            b += com_w[j] * mid - support_w[j] * p
+        bb = b.x * b.x + b.z * b.z
+        f += bal_w * bb
+        oerr = ti.max(oerr, ti.sqrt(bb))
+    return vec3(f, perr, oerr)
+
+
+@ti.func
+def dof_axes(i, j, k, s, angle_joint, parent: ti.template(), axes: ti.template(), root_yaw: ti.template(),
+             world_rot: ti.template(), work: ti.template()):
+    """World axes (columns) of joint j's DOFs: d(angle) axes from the solver's angles, or world x, y, z."""
+    w0 = vec3(1.0, 0.0, 0.0)
+    w1 = vec3(0.0, 1.0, 0.0)
+    w2 = vec3(0.0, 0.0, 1.0)
+    if angle_joint:
+        base = parent_rot(i, j, parent, root_yaw, world_rot)
+        if k == 1:
+            w0 = qrot(base, axes[j, 0])
+        elif k == 2:
+            w0 = qrot(base, axes[j, 0])
+            w1 = qrot(qmul(base, axis_angle(axes[j, 0], work[i, THETA, s])), axes[j, 1])
+        else:
+            rx = qmul(base, axis_angle(vec3(1.0, 0.0, 0.0), work[i, THETA, s]))
+            w0 = qrot(base, vec3(1.0, 0.0, 0.0))
+            w1 = qrot(rx, vec3(0.0, 1.0, 0.0))
+            w2 = qrot(qmul(rx, axis_angle(vec3(0.0, 1.0, 0.0), work[i, THETA, s + 1])), vec3(0.0, 0.0, 1.0))
+    return ti.Matrix.cols([w0, w1, w2])
+
+
+@ti.func
+def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
+                 dof_start: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(),
+                 eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(),
+                 root_yaw: ti.template(), local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(),
+                 targets: ti.template(), weights: ti.template(), orient: ti.template(), work: ti.template(),
+                 qwork: ti.template(), com_w: ti.template(), support_w: ti.template(), jac: ti.template(),
+                 rows: ti.template(), length, rest_w, vel_w, bal_w):
+    """Fill jac[i, :R], rows[i, 0, :R] (the aimed error) and work[i, G]; return R, the number of rows.
+
+    The balance rows (bal_w > 0) come last, after the effectors' rows.
+    """
+    D = jac.shape[2]
+    for r, d in ti.ndrange(jac.shape[1], D):
+        jac[i, r, d] = 0.0
+    base = rel_pos[i, 0]
+    E = eff_joint.shape[0]
+    J = parent.shape[0]
+    r = 0
+    # e = E is the balance term: its walk visits every joint (n = J-1 .. 0) instead of a path to the root
+    # (one walk for both keeps a single inlined dof_axes: faster compiles)
+    for e in range(E + 1):
+        bal = e == E
+        sw = 0.0
+        if bal:
+            sw = ti.sqrt(ti.max(bal_w, 0.0))
+        else:
+            sw = ti.sqrt(ti.max(weights[i, e], 0.0))
+        if sw > 0.0:
+            k = J - 1
+            p_eff = vec3(0.0)
+            ori = False
+            u1 = vec3(0.0)
+            u2 = vec3(0.0)
+            if bal:
+                # qwork[i, Q_COM, n] = (sum a_j p_j, sum a_j) over the weighted points strictly below joint n:
+                # the midpoint of the bone ending at j (a_j = com_w[j]) and a foot at j (a_j = -support_w[j])
+                for j in range(J):
+                    qwork[i, Q_COM, j] = vec4(0.0)
+                for jj in range(J - 1):
+                    j = J - 1 - jj
+                    p = rel_pos[i, j]
+                    own = com_w[j] * 0.5 * (rel_pos[i, parent[j]] + p) - support_w[j] * p
+                    acc = qwork[i, Q_COM, j]
+                    qwork[i, Q_COM, parent[j]] += vec4(own + acc.xyz, com_w[j] - support_w[j] + acc.w)
+                total = qwork[i, Q_COM, 0].xyz - support_w[0] * rel_pos[i, 0]  # c - s (the root has no bone)
+                rows[i, 0, r] = -sw * total.x
+                rows[i, 0, r + 1] = -sw * total.z
+            else:
+                k = eff_joint[e]
+                p_eff = rel_pos[i, k]
+                reach = eff_lim[e, 0]
+                dmax = eff_lim[e, 1]
+                tgt = targets[i, e] - root_pos[i]
+                v = tgt - base
+                dist = v.norm()
+                if dist > reach + dmax:
+                    tgt = base + v * ((reach + dmax) / dist)
+                d = tgt - p_eff
+                dn = d.norm()
+                if dn > dmax:
+                    d = d * (dmax / dn)
+                for c in ti.static(range(3)):
+                    rows[i, 0, r + c] = sw * d[c]
+                ori = has_orientation(i, e, eff_has_axis, orient)
+                if ori:
+                    a = qrot(world_rot[i, k], eff_axis[e]).normalized()
+                    rv = swing_vector(a, orient[i, e])
+                    ang = rv.norm()
+                    if ang > ORI_CLAMP:
+                        rv = rv * (ORI_CLAMP / ang)
+                    u1 = perpendicular(a)
+                    u2 = ti.math.cross(a, u1)
+                    rows[i, 0, r + 3] = sw * length * rv.dot(u1)
+                    rows[i, 0, r + 4] = sw * length * rv.dot(u2)
+            n = k
+            while n >= 0:
+                kd = kind[n]
+                if kd > 0:
+                    s = dof_start[n]
+                    wm = dof_axes(i, n, kd, s, jmode[n] == 1, parent, axes, root_yaw, world_rot, work)
+                    lever = p_eff - rel_pos[i, n]
+                    if bal:
+                        acc = qwork[i, Q_COM, n]
+                        lever = acc.xyz - acc.w * rel_pos[i, n]
+                    for c in range(kd):
+                        col = vec3(wm[0, c], wm[1, c], wm[2, c])
+                        dp = ti.math.cross(col, lever)
+                        if bal:
+                            jac[i, r, s + c] = sw * dp.x
+                            jac[i, r + 1, s + c] = sw * dp.z
+                        else:
+                            for cc in ti.static(range(3)):
+                                jac[i, r + cc, s + c] = sw * dp[cc]
+                            if ori:
+                                jac[i, r + 3, s + c] = sw * length * col.dot(u1)
+                                jac[i, r + 4, s + c] = sw * length * col.dot(u2)
+                if bal:
+                    n -= 1
+                else:
+                    n = parent[n]
+            if bal:
+                r += 2
+            else:
+                r += 3
+                if ori:
+                    r += 2
+    # g = -(alpha rho + beta nu): rho, nu in the columns' coordinates (world axes for quaternion joints)
+    for d in range(D):
+        work[i, G, d] = 0.0
+    if rest_w > 0.0 or vel_w > 0.0:
+        for j in range(parent.shape[0]):
+            k = kind[j]
+            s = dof_start[j]
+            if k > 0:
+                if jmode[j] == 1:
+                    for c in range(k):
+                        th = work[i, THETA, s + c]
+                        work[i, G, s + c] = -(rest_w * th + vel_w * (th - work[i, THETA0, s + c]))
+                else:
+                    base_rot = parent_rot(i, j, parent, root_yaw, world_rot)
+                    q = local_rot[i, j]
+                    rho = qrot(base_rot, qlog(q))
+                    nu = qrot(base_rot, qlog(qmul(q, qconj(qwork[i, Q_START, j]))))
+                    g = -(rest_w * rho + vel_w * nu)
+                    for c in ti.static(range(3)):
+                        work[i, G, s + c] = g[c]
+    return r
+
+
+@ti.func
+def solve_step(i, R, lam2, rest_w, vel_w, joint_w: ti.template(), jac: ti.template(), rows: ti.template(),
+               sys: ti.template(), work: ti.template()):
+    """work[i, STEP] = M g + M' J^T (J M' J^T + lam^2 I)^-1 (e - J M g) over the free DOFs.
+
+    Returns 1, or 0 when round-off made the system not positive definite (the step is then void).
+    """
+    D = jac.shape[2]
+    for d in range(D):
+        w = joint_w[d] * work[i, FREE, d]
+        den = lam2 + w * (rest_w + vel_w)
+        work[i, MP, d] = w * lam2 / den
+        work[i, MG, d] = w * work[i, G, d] / den
+    for r in range(R):
+        for c in range(r + 1):
+            acc = 0.0
+            for d in range(D):
+                acc += jac[i, r, d] * work[i, MP, d] * jac[i, c, d]
+            if r == c:
+                acc += lam2
+            sys[i, r, c] = acc
+        b = rows[i, 0, r]
+        for d in range(D):
+            b -= jac[i, r, d] * work[i, MG, d]
+        rows[i, 1, r] = b
+    ok = 1
+    for c in range(R):  # Cholesky, lower triangle in place
+        v = sys[i, c, c]
+        for k in range(c):
+            v -= sys[i, c, k] * sys[i, c, k]
+        if v <= 0.0:
+            ok = 0
+            v = 1.0
+        lc = ti.sqrt(v)
+        sys[i, c, c] = lc
+        for r in range(c + 1, R):
+            x = sys[i, r, c]
+            for k in range(c):
+                x -= sys[i, r, k] * sys[i, c, k]
+            sys[i, r, c] = x / lc
+    for r in range(R):  # L z = b
+        x = rows[i, 1, r]
+        for k in range(r):
+            x -= sys[i, r, k] * rows[i, 1, k]
+        rows[i, 1, r] = x / sys[i, r, r]
+    for rr in range(R):  # L^T y = z
+        r = R - 1 - rr
+        x = rows[i, 1, r]
+        for k in range(r + 1, R):
+            x -= sys[i, k, r] * rows[i, 1, k]
+        rows[i, 1, r] = x / sys[i, r, r]
+    for d in range(D):
+        acc = 0.0
+        for r in range(R):
+            acc += jac[i, r, d] * rows[i, 1, r]
+        work[i, STEP, d] = work[i, MG, d] + work[i, MP, d] * acc
+    return ok
