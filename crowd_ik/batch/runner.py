@@ -278,12 +278,15 @@ def run_jobs(p: Plan, *, address: str | None = None, workers: int | None = None,
 
         idle = [start_worker() for _ in range(n_workers)]
         try:
-            ray.get([a.info.remote() for a in idle])
+            infos = ray.get([a.info.remote() for a in idle])
         except ray.exceptions.RayError as exc:
-            cause = _cause(ray, exc)
-            if isinstance(cause, ValueError):
-                raise ValueError(one_line(cause)) from None
-            raise RuntimeError(f"render-many: the workers could not start: {one_line(cause)}") from None
+            text = one_line(_cause(ray, exc)).splitlines()[0][:300]
+            raise RuntimeError(f"render-many: the workers could not start: {text}") from None
+        for info in infos:
+            if info["error"] is not None:
+                if info["bad_input"]:
+                    raise ValueError(info["error"])
+                raise RuntimeError(f"render-many: worker {info['worker']} could not start Taichi: {info['error']}")
         queue = collections.deque((job, 1) for job in p.todo)
         inflight: dict = {}
         with _progress(len(p.todo) + len(p.done), len(p.done), progress) as bar:

@@ -58,19 +58,27 @@ def _remove_stale_folders() -> None:
 class JobRenderer:
     """Renders Jobs (crowd_ik.batch.jobs) one at a time in this process.
 
-    arch, threads: crowd_ik.init's; Taichi starts here, once for all the jobs this worker renders.
+    arch, threads: crowd_ik.init's; Taichi starts here, once for all the jobs this worker renders. A
+    failure to start (e.g. arch "cuda" on a machine without a GPU) is kept and reported by info() and
+    every render(), so the driver can say it in one line instead of a dead actor's traceback.
     """
 
     def __init__(self, arch: str = "auto", threads: int | None = None):
-        self.arch = runtime.init(arch=arch, threads=threads)
         self.name = f"{socket.gethostname()}:{os.getpid()}"
+        self.error: str | None = None
+        self.bad_input = False
+        try:
+            self.arch = runtime.init(arch=arch, threads=threads)
+        except (ValueError, RuntimeError) as exc:
+            self.arch, self.error, self.bad_input = None, one_line(exc), isinstance(exc, ValueError)
         self.jobs = 0
         _remove_stale_folders()
 
     def info(self) -> dict:
-        """Who this worker is: name (host:pid), arch, threads, jobs rendered so far."""
+        """Who this worker is: name (host:pid), arch, threads, jobs rendered so far, and why Taichi could
+        not start (error, bad_input) or None."""
         return {"worker": self.name, "arch": self.arch, "threads": runtime.current().get("threads"),
-                "jobs": self.jobs}
+                "jobs": self.jobs, "error": self.error, "bad_input": self.bad_input}
 
     def render(self, job, output: str) -> dict:
         """Render `job`; `output` is its path on the driver (recorded in the stats).
@@ -80,6 +88,9 @@ class JobRenderer:
         an answer, not an exception, so the worker stays up for the next job.
         """
         t0 = time.perf_counter()
+        if self.error is not None:
+            return {"status": "failed", "error": f"the worker could not start Taichi: {self.error}",
+                    "worker": self.name, "wall_s": 0.0}
         folder = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{os.getpid()}-"))
         self.jobs += 1
         try:
