@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.kernels import raster as k
+from crowd_ik.kernels import raster_geometry as k
 
 
 def _camera(cam):
