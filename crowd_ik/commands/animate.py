@@ -18,6 +18,7 @@ from crowd_ik import runtime
 def run(args) -> int:
     """`crowd-ik animate`: see the module docstring."""
     from crowd_ik.animation import animate, check_video_output, parse_blend
+    from crowd_ik.io.video import check_size
     from crowd_ik.scene import parse_size
 
     t_start = time.perf_counter()
@@ -33,7 +34,7 @@ def run(args) -> int:
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames: must be a positive integer (got {args.frames})")
     blend = parse_blend(args.blend) if args.blend is not None else None
-    size = parse_size(args.size, "--size")
+    size = check_size(parse_size(args.size, "--size"), "--size")
     out = args.output if args.output is not None else f"{Path(args.clip).stem}.mp4"
     check_video_output(out, args.force)
     arch = runtime.init(arch=args.arch, threads=args.threads)
