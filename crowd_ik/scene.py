@@ -218,6 +218,8 @@ class Characters:
     spacing: float = _key(1.5, _Float(0, MAX_EXTENT, unit=" m"), "distance between neighbouring roots, metres")
     rig: str = _key("humanoid", _Choice("humanoid", "chain"), "the skeleton every character uses")
     scale: float = _key(1.0, _Float(0, MAX_SCALE), "size factor on the rig (1 = a 1.75 m humanoid)")
+    walk_speed: float = _key(1.0, _Float(0, 10.0, lo_open=False, unit=" m/s"),
+                             "bystanders' mean wandering speed, metres per second (0: they stand)")
 
 
 @dataclass(frozen=True)
@@ -272,9 +274,11 @@ class Solver:
 
 @dataclass(frozen=True)
 class Camera:
-    """A perspective camera looking at a point, y up."""
+    """A perspective camera looking at a point, y up; "follow" keeps position - look_at as an offset from
+    the player's pelvis (low-passed), "fixed" stays where it is."""
 
-    position: tuple[float, float, float] = _key((0.0, 8.0, 16.0), _Vec3(), "eye position, metres")
+    mode: str = _key("follow", _Choice("follow", "fixed"), "follow the player, or stay fixed")
+    position: tuple[float, float, float] = _key((0.0, 4.5, 8.5), _Vec3(), "eye position, metres")
     look_at: tuple[float, float, float] = _key((0.0, 1.0, 0.0), _Vec3(), "point at the centre of the frame, metres")
     fov_deg: float = _key(50.0, _Float(MIN_FOV_DEG, 180, lo_open=False, hi_open=True), "vertical field of view, degrees")
 
@@ -509,7 +513,7 @@ class _Validator:
 
 
 def crowd_extent(scene: Scene) -> float:
-    """Metres from the centre to the farthest character root along x or z (crowd_ik.game.world's layouts:
+    """Metres from the centre to the farthest character root along x or z (crowd_ik.game.layout's layouts:
     a centred square grid, jittered by up to a quarter spacing for "random", or a ring)."""
     c = scene.characters
     n, sp = c.count, c.spacing
