@@ -126,19 +126,14 @@ def full_disk(tmp_path):
     disk.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(disk)], capture_output=True).returncode:
         pytest.skip("cannot mount a tmpfs here")
-    filler = disk / "filler"
     try:
-        with open(filler, "wb") as fh:
-            try:
+        try:
+            with open(disk / "filler", "wb") as fh:
                 while True:
                     fh.write(b"\0" * 65536)
                     fh.flush()
-            except OSError:
-                pass
-    except OSError:
-        pass  # the close's flush fails too: the disk is full
-
-    try:
+        except OSError:
+            pass  # the disk is full
         yield disk
     finally:
         subprocess.run(["umount", "-l", str(disk)], check=False)

@@ -100,7 +100,7 @@ def test_int_accepted_where_float_expected():
         ("video.seconds = 0.001", "bad.toml: video.seconds: gives no frames at 30 fps (seconds * fps < 0.5) (got 0.001)"),
         ("camera.fov_deg = 180", "bad.toml: camera.fov_deg: must be in [0.01, 180) (got 180)"),
         ("camera.fov_deg = 0", "bad.toml: camera.fov_deg: must be in [0.01, 180) (got 0)"),
-        ("camera.look_at = [0, 8, 16]", "bad.toml: camera.look_at: must be at least 1 mm from camera.position [0.0, 8.0, 16.0] (got [0.0, 8.0, 16.0])"),
+        ("camera = { position = [0, 8, 16], look_at = [0, 8, 16] }", "bad.toml: camera.look_at: must be at least 1 mm from camera.position [0.0, 8.0, 16.0] (got [0.0, 8.0, 16.0])"),
         ("camera.position = [1, 2]", "bad.toml: camera.position: must be a list of 3 numbers [x, y, z] (got [1, 2])"),
         ("camera.position = [1, 2, nan]", "bad.toml: camera.position: must be 3 finite numbers [x, y, z] within +-10000 m (got [1, 2, nan])"),
         ("shooters.spread_deg = 90", "bad.toml: shooters.spread_deg: must be in [0, 90) (got 90)"),
