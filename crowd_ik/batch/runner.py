@@ -31,7 +31,7 @@ from pathlib import Path
 
 from crowd_ik.batch.jobs import Job
 from crowd_ik.batch.worker import JobRenderer, one_line
-from crowd_ik.io.output import write_bytes
+from crowd_ik.io.output import check_writable_dir, write_bytes
 
 MANIFEST = "manifest.jsonl"
 INSTALL_HINT = "pip install 'crowd_ik[cluster]' (or: pip install ray)"
@@ -124,9 +124,7 @@ def _size(path: Path) -> int | None:
 def plan(jobs: list[Job], folder: str | os.PathLike, force: bool = False) -> Plan:
     """Which jobs to render. Raises FileExistsError for an output that is not a complete job's (without
     force), NotADirectoryError when DIR is a file; creates nothing."""
-    out = Path(os.path.abspath(Path(folder).expanduser()))
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: exists and is not a folder")
+    out = check_writable_dir(folder, force=True)  # a folder (or none yet) we may write in; not a file
     manifest = Manifest(out)
     records = manifest.read()
     todo, done = [], []
