@@ -13,11 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from crowd_ik import runtime
-from crowd_ik.checks import (
-    MAX_ITERATIONS, as_array as _as_array, is_number, non_negative as _non_negative, positive_int as _positive_int,
-)
+from crowd_ik.checks import as_array as _as_array, is_number, positive_int as _positive_int
 from crowd_ik.rig import MAX_EXTENT, Rig
-from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD, METHODS
+from crowd_ik.solvers import ccd, dls, fabrik
+from crowd_ik.solvers.bundles import SolveBuffers
+from crowd_ik.solvers.registry import CCD, DEFAULT as DEFAULT_METHOD, DLS, FABRIK, METHODS
+from crowd_ik.solvers.request import SolveRequest, check_request
 
 # Bytes of Taichi state per joint and per DOF of one character (positions, rotations, scratch).
 _BYTES_PER_JOINT = 4 * (3 + 4 + 4 + 3 + 3 + 1)
@@ -82,7 +83,7 @@ class Crowd:
         runtime.ensure_init()
         import taichi as ti
 
-        self._ti = ti
+        self.ti = ti
         J, D, E, N = rig.n_joints, rig.n_dof, rig.n_effectors, self.n
         self.rig_arrays = {}
         for key, value in rig.arrays.items():
@@ -105,16 +106,7 @@ class Crowd:
         self.world_pos = ti.ndarray(vec3, shape=(N, J))
         self.world_rot = ti.ndarray(vec4, shape=(N, J))
         self._angles = ti.ndarray(ti.f32, shape=(N, max(D, 1)))
-        # Solver inputs and outputs, reused by every solve: host arrays that the kernels take as they are (on
-        # the CPU without a copy; on a GPU Taichi copies them around the launch, as from_numpy would). A copy
-        # into a ti.ndarray cost 0.8 ms per (10,000, 5, 3) array.
-        self._targets = np.zeros((N, E, 3), np.float32)
-        self._orient = np.zeros((N, E, 3), np.float32)
-        self._orient_zero = True  # True while self._orient holds zeros
-        self._weights = np.zeros((N, E), np.float32)
-        self._error = np.zeros(N, np.float32)
-        self._iters = np.zeros(N, np.int32)
-        self._stalled = np.zeros(N, np.int32)
+        self.buffers = SolveBuffers(N, E)  # the solvers' inputs and outputs, reused by every solve
         self._scratch: dict[str, object] = {}
         self._every = np.arange(N, dtype=np.int32)
         self._roots_host = self._yaw_host = None  # the roots as last set (set_roots redoes FK of the moved ones)
@@ -132,7 +124,7 @@ class Crowd:
         """A named solver scratch ndarray, allocated on first use and kept (solvers reuse it each call)."""
         arr = self._scratch.get(name)
         if arr is None or tuple(arr.shape) != tuple(shape):
-            arr = self._ti.ndarray(dtype, shape=shape)
+            arr = self.ti.ndarray(dtype, shape=shape)
             self._scratch[name] = arr
         return arr
 
@@ -235,7 +227,7 @@ class Crowd:
         from crowd_ik.kernels import jacobian
 
         ra = self.rig_arrays
-        out = self.scratch("jacobian", self._ti.f32, (self.n, 6 * self.rig.n_effectors, max(self.rig.n_dof, 1)))
+        out = self.scratch("jacobian", self.ti.f32, (self.n, 6 * self.rig.n_effectors, max(self.rig.n_dof, 1)))
         jacobian.compute_jacobian(ra["parent"], ra["kind"], ra["axes"], ra["dof_start"], ra["eff_joint"],
                                   self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
                                   0 if ball_mode == "euler" else 1, out)
@@ -256,219 +248,25 @@ class Crowd:
         crowd_ik/reference/dls.py). Balance is a DLS objective: FABRIK and CCD ignore it. The result
         stays in the crowd.
         """
-        if method not in METHODS:
-            raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
-        max_iterations = _positive_int(max_iterations, "max_iterations", MAX_ITERATIONS)
-        if not is_number(tolerance) or not (math.isfinite(tolerance) and tolerance > 0):
-            raise ValueError(f"tolerance: expected a positive number (got {tolerance!r})")
-        N, E, dim = self.n, self.rig.n_effectors, self.dim
-        if np.ndim(targets) == 2 and np.shape(targets) == (E, dim) and N == 1:
-            targets = np.asarray(targets)[None]
-        tgt = _as_array(targets, "targets", (N, E, dim), limit=MAX_EXTENT)
-        if np.shape(targets) != (N, E, dim):
-            raise ValueError(f"targets: expected shape {(N, E, dim)} (got {np.shape(targets)})")
-        w = np.ones((N, E), np.float32) if weights is None else _as_array(weights, "weights", (N, E))
-        if np.any(w < 0):
-            raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
-        if not np.any(w > 0):
-            raise ValueError("weights: at least one effector needs a positive weight")
-        if orientations is not None:
-            orient = _as_array(orientations, "orientations", (N, E, 3))
-            norms = np.sqrt(np.einsum("nek,nek->ne", orient, orient))
-            has = norms > 0
-            no_axis = np.nonzero(np.any(has, axis=0) & (self.rig.arrays["eff_has_axis"] == 0))[0]
-            if no_axis.size:
-                name = self.rig.effector_names[no_axis[0]]
-                raise ValueError(f"orientations: effector {name!r} has no local axis to orient (give zeros for it)")
-            orient = orient / np.maximum(norms, 1e-30)[..., None]  # zero rows stay zero
-        else:
-            orient = None
-        params = dict(
-            rest_weight=_non_negative(rest_weight, "rest_weight"),
-            velocity_weight=_non_negative(velocity_weight, "velocity_weight"),
-            damping=None if damping is None else _non_negative(damping, "damping"),
-            joint_weights=None if joint_weights is None
-            else _as_array(joint_weights, "joint_weights", (self.rig.n_dof,)),
-            balance_weight=_non_negative(balance_weight, "balance_weight"),
-        )
-        if params["balance_weight"] > 0 and not any(e.name.startswith("foot") for e in self.rig.effectors):
-            raise ValueError("balance_weight: the rig has no foot effectors")
-        if params["joint_weights"] is not None and np.any(params["joint_weights"] < 0):
-            raise ValueError(f"joint_weights: must be >= 0 (got {float(params['joint_weights'].min())})")
-        full = self._targets
-        full[..., :dim] = tgt
-        np.copyto(self._weights, w)
-        if orient is not None:
-            np.copyto(self._orient, orient)
-        elif not self._orient_zero:
-            self._orient.fill(0.0)
-        self._orient_zero = orient is None
-        launch = getattr(self, f"_solve_{method}")
-        launch(max_iterations, float(tolerance), params)
-        return self._report(full, w, float(tolerance), method)
+        req = check_request(self.rig, self.n, targets, method, max_iterations, tolerance, weights, orientations,
+                            rest_weight, velocity_weight, damping, joint_weights, balance_weight)
+        self.buffers.load(req)
+        SOLVERS[req.method](self, req)
+        return self._report(req)
 
-    def _report(self, targets: np.ndarray, w: np.ndarray, tolerance: float, method: str) -> SolveReport:
-        error = self._error.copy()
-        iters = self._iters.copy()
-        stalled = self._stalled.astype(bool)
+    def _report(self, req: SolveRequest) -> SolveReport:
+        b = self.buffers
+        error, iters, stalled = b.error.copy(), b.iterations.copy(), b.stalled.astype(bool)
         status = np.full(self.n, Status.CONVERGED, np.int8)
-        left = np.flatnonzero(error > tolerance)  # the others converged (in a game step, nearly all of them)
-        d = targets[left] - self._base[left, None, :]
+        left = np.flatnonzero(error > req.tolerance)  # the others converged (in a game step, nearly all of them)
+        d = b.targets[left] - self._base[left, None, :]
         far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
-        status[left] = np.where(np.any(far & (w[left] > 0), axis=1), Status.UNREACHABLE,
+        status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
                                 np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
-        return SolveReport(error=error, iterations=iters, status=status, method=method)
+        return SolveReport(error=error, iterations=iters, status=status, method=req.method)
 
-    def _solve_fabrik(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        if self.rig.constraint_free and self._orient_zero:
-            self._solve_fabrik_free(max_iterations, tolerance)
-        else:
-            self._solve_fabrik_general(max_iterations, tolerance, recover_each_iteration=1)
 
-    def _solve_fabrik_general(self, max_iterations: int, tolerance: float, recover_each_iteration: int) -> None:
-        """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
-        constraint-free rigs without orientation targets (the rotations of the final positions, once)."""
-        from crowd_ik.kernels import fabrik
-
-        ra, ti = self.rig_arrays, self._ti
-        work = self.scratch("fabrik_pos", ti.math.vec3, (self.n, self.rig.n_joints))
-        acc_w = self.scratch("fabrik_w", ti.f32, (self.n, self.rig.n_joints))
-        fabrik.fabrik_solve(
-            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
-            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"],
-            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
-            self._targets, self._weights, self._orient, work, acc_w,
-            max_iterations, tolerance, recover_each_iteration, int(not self._orient_zero),
-            self._error, self._iters, self._stalled,
-        )
-
-    def _solve_fabrik_free(self, max_iterations: int, tolerance: float) -> None:
-        """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
-        from crowd_ik.kernels import fabrik_lanes, lane_plan
-        from crowd_ik.solvers import settings
-
-        ra, ti, L = self.rig_arrays, self._ti, settings.lanes()
-        J, E = self.rig.n_joints, self.rig.n_effectors
-        if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
-            self._solve_fabrik_general(max_iterations, tolerance, recover_each_iteration=0)
-            return
-        LP = lane_plan.pass_lanes(L)
-        P = lane_plan.packets(self.n, L)
-        V = ti.types.vector(L, ti.f32)
-        proposals = [self.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
-        fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
-            ra["parent"], ra["bone"], ra["eff_joint"], self.world_pos, self._targets, self._weights,
-            lane_plan.streams(self.n, LP), *proposals, max_iterations, tolerance, self._error, self._iters,
-            self._stalled,
-        )
-        fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
-            ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets,
-            self._weights, *proposals, min(P, lane_plan.MAX_STREAMS), self._error, self._iters,
-        )
-
-    def _solve_dls(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        """Damped least squares with LM damping and a joint-limit active set (kernels/dls.py), one launch."""
-        from crowd_ik.kernels import dls
-        from crowd_ik.solvers.dls_setup import dls_settings
-        from crowd_ik.solvers.limits import limit_pseudo_angles
-
-        ra, ti, rig, N = self.rig_arrays, self._ti, self.rig, self.n
-        if self._dls_free_applies(params):
-            self._solve_dls_free(max_iterations, tolerance, params)
-            return
-        # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
-        D, J = max(rig.n_dof, 1), rig.n_joints
-        R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(params["balance_weight"] > 0)
-        settings = dls_settings(rig, params["damping"], params["joint_weights"])
-        joint_w = np.zeros(D + 1, np.float32)
-        joint_w[: rig.n_dof] = 1.0 if params["joint_weights"] is None else params["joint_weights"]
-        small = {}  # per-solve settings: a few dozen numbers
-        for name, value in (("eff_lim", settings["eff_lim"]), ("joint_w", joint_w), ("jmode", settings["jmode"]),
-                            ("lo", settings["lo32"]), ("hi", settings["hi32"]),
-                            ("lim_p", limit_pseudo_angles(settings["lo32"], settings["hi32"])),
-                            ("com_w", settings["com_w"].astype(np.float32)),
-                            ("support_w", settings["support_w"].astype(np.float32))):
-            small[name] = self.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
-            small[name].from_numpy(value)
-        dls.dls_solve(
-            ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
-            small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-            ra["eff_axis"], ra["eff_has_axis"],
-            small["eff_lim"], small["joint_w"], small["com_w"], small["support_w"], self.root_pos, self.root_yaw,
-            self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights, self._orient,
-            self.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
-            self.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
-            self.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
-            self.scratch("dls_jac", ti.f32, (N, R, D + 1)), self.scratch("dls_rows", ti.f32, (N, 2, R)),
-            self.scratch("dls_sys", ti.f32, (N, R, R)),
-            max_iterations, tolerance, settings["damping"], settings["length"],
-            params["rest_weight"], params["velocity_weight"], params["balance_weight"], self._error, self._iters,
-            self._stalled,
-        )
-
-    def _dls_free_applies(self, params: dict) -> bool:
-        """Whether dls_solve_free gives this solve: one position effector on a constraint-free rig, no extra terms."""
-        return (self.rig.constraint_free and self.rig.n_effectors == 1 and self._orient_zero
-                and params["rest_weight"] == 0 and params["velocity_weight"] == 0
-                and params["balance_weight"] == 0 and params["joint_weights"] is None)
-
-    def _solve_dls_free(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, characters as SIMD lanes."""
-        from crowd_ik.kernels import dls_lanes, lane_plan
-        from crowd_ik.solvers.dls_setup import dls_settings
-        from crowd_ik.solvers import settings
-
-        ra, ti, rig = self.rig_arrays, self._ti, self.rig
-        dls_cfg = dls_settings(rig, params["damping"])
-        on_path_np = np.zeros(rig.n_joints, np.int32)
-        path = rig.path_to_root(rig.effectors[0].joint)
-        on_path_np[path] = rig.arrays["kind"][path] > 0
-        on_path = self.scratch("dls_on_path", ti.i32, (rig.n_joints,))
-        on_path.from_numpy(on_path_np)
-        eff_lim = self.scratch("dls_eff_lim", ti.f32, dls_cfg["eff_lim"].shape)
-        eff_lim.from_numpy(dls_cfg["eff_lim"])
-        L = settings.lanes()
-        if L == 1:  # CUDA: one character per GPU thread, each pose in local arrays
-            from crowd_ik.kernels import dls_free
-
-            dls_free.dls_solve_free(
-                ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos,
-                self.root_yaw, self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
-                max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"], self._error, self._iters,
-                self._stalled, rig.n_joints,
-            )
-            return
-        # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
-        dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
-            ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, self.root_pos, self.root_yaw,
-            self.local_rot, self.world_pos, self.world_rot, self._targets, self._weights,
-            lane_plan.streams(self.n, L), max_iterations, tolerance, dls_cfg["damping"], dls_cfg["length"],
-            self._error, self._iters, self._stalled,
-        )
-
-    def _solve_ccd(self, max_iterations: int, tolerance: float, params: dict) -> None:
-        """Cyclic coordinate descent (kernels/ccd.py): one sweep per iteration, deepest joint to the root."""
-        from crowd_ik.kernels import ccd
-
-        ra, ti, rig = self.rig_arrays, self._ti, self.rig
-        # below[j, e] = 1 where effector e's joint lies in joint j's subtree (j included)
-        below_np = np.zeros((rig.n_joints, rig.n_effectors), np.int32)
-        for e, eff in enumerate(rig.effectors):
-            below_np[rig.path_to_root(eff.joint), e] = 1
-        below = self.scratch("ccd_below", ti.i32, below_np.shape)
-        below.from_numpy(below_np)
-        reach = self.scratch("ccd_reach", ti.f32, (rig.n_effectors,))
-        reach.from_numpy(rig.reach.astype(np.float32))
-        ccd.ccd_solve(
-            ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
-            ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, reach,
-            self.root_pos, self.root_yaw, self.local_rot, self.world_pos, self.world_rot,
-            self._targets, self._weights, self._orient,
-            self.scratch("ccd_rel_t", ti.math.vec3, (self.n, rig.n_effectors)),
-            self.scratch("ccd_eff_pos", ti.math.vec3, (self.n, rig.n_effectors)),
-            max_iterations, tolerance, self._error, self._iters, self._stalled,
-        )
+SOLVERS = {FABRIK: fabrik.solve, DLS: dls.solve, CCD: ccd.solve}  # one adapter per method (crowd_ik/solvers/)
 
 
 __all__ = ["Crowd", "SolveReport", "Status", "METHODS", "grid_positions"]

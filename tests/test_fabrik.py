@@ -198,7 +198,8 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
     characters that start on their target, converge, run out of iterations, or reach for an unreachable target,
     with per-character weights, on a chain and on a tree."""
     from crowd_ik.kernels import fabrik
-    from crowd_ik.solvers import settings
+    from crowd_ik.solvers import bundles, settings
+    from crowd_ik.solvers import fabrik as adapter
 
     L = lanes or settings.lanes()
     monkeypatch.setattr(settings, "lanes", lambda: L)
@@ -206,22 +207,18 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
         assert rig.constraint_free
         n = 3 * L + 5
         crowd, targets, weights = _free_case(rig, n)
-        ra = crowd.rig_arrays
 
-        def per_character(max_iterations, tolerance):
-            fabrik.fabrik_solve(ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"],
-                                ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-                                ra["eff_axis"], crowd.root_pos, crowd.root_yaw, crowd.local_rot, crowd.world_pos,
-                                crowd.world_rot, crowd._targets, crowd._weights, crowd._orient,
-                                crowd.scratch("t_pos", crowd._ti.math.vec3, (n, rig.n_joints)),
-                                crowd.scratch("t_w", crowd._ti.f32, (n, rig.n_joints)), max_iterations, tolerance,
-                                0, 0, crowd._error, crowd._iters, crowd._stalled)
+        def per_character(crowd, max_iterations, tolerance):
+            fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd),
+                                crowd.scratch("t_pos", crowd.ti.math.vec3, (n, rig.n_joints)),
+                                crowd.scratch("t_w", crowd.ti.f32, (n, rig.n_joints)), max_iterations, tolerance,
+                                0, 0, *bundles.result(crowd))
 
-        lane_packed = crowd._solve_fabrik_free
+        lane_packed = adapter._free
         for iterations in (2, 50):
             got = []
-            for kernel in (lane_packed, lambda m, t: per_character(m, t)):
-                monkeypatch.setattr(crowd, "_solve_fabrik_free", kernel)
+            for kernel in (lane_packed, per_character):
+                monkeypatch.setattr(adapter, "_free", kernel)
                 crowd.set_angles(np.zeros(rig.n_dof))
                 rep = crowd.solve(targets, weights=weights, max_iterations=iterations, tolerance=1e-4)
                 got.append((rep, crowd.joint_positions(), crowd.rotations()))

@@ -2,8 +2,9 @@
 
 Every product module that names a method (the Crowd, the scene schema, the command line, the bench, the
 mouse demo, the chart) imports it from here; tests/test_layering.py checks that no other product module
-spells a method name as a string literal. A new solver gets its name here, a `Crowd._solve_<name>`
-method, its kernels in kernels/ and its NumPy twin in crowd_ik/reference/<name>.py.
+spells a method name as a string literal. A new solver gets its name here, an adapter
+crowd_ik/solvers/<name>.py (`solve(crowd, request)`, listed in crowd.SOLVERS), its kernels in kernels/
+and its NumPy twin in crowd_ik/reference/<name>.py.
 """
 
 FABRIK = "fabrik"  # Aristidou & Lasenby 2011, with joint limits and sub-bases (kernels/fabrik*.py)

@@ -1,0 +1,86 @@
+"""Damped least squares for a Crowd: which kernel solves a request, its per-solve settings, and its launch.
+
+One position effector on a constraint-free rig with no secondary terms has a closed-form 3 x 3
+system: characters as SIMD lanes (kernels/dls_lanes.py; on CUDA one per thread, kernels/dls_free.py).
+Everything else runs the general kernel (kernels/dls.py: LM damping, joint-limit active set,
+orientation rows, rest / velocity / balance terms).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from crowd_ik.solvers import bundles, settings
+from crowd_ik.solvers.dls_setup import dls_settings
+from crowd_ik.solvers.limits import limit_pseudo_angles
+
+
+def solve(crowd, req) -> None:
+    if crowd.rig.constraint_free and crowd.rig.n_effectors == 1 and req.plain:
+        _free(crowd, req)
+    else:
+        _general(crowd, req)
+
+
+def _general(crowd, req) -> None:
+    """kernels/dls.py, one launch."""
+    from crowd_ik.kernels import dls
+
+    ra, ti, rig, N = crowd.rig_arrays, crowd.ti, crowd.rig, crowd.n
+    # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
+    D, J = max(rig.n_dof, 1), rig.n_joints
+    R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(req.balance_weight > 0)
+    cfg = dls_settings(rig, req.damping, req.joint_weights)
+    joint_w = np.zeros(D + 1, np.float32)
+    joint_w[: rig.n_dof] = 1.0 if req.joint_weights is None else req.joint_weights
+    small = {}  # per-solve settings: a few dozen numbers
+    for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
+                        ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
+                        ("lim_p", limit_pseudo_angles(cfg["lo32"], cfg["hi32"])),
+                        ("com_w", cfg["com_w"].astype(np.float32)),
+                        ("support_w", cfg["support_w"].astype(np.float32))):
+        small[name] = crowd.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
+        small[name].from_numpy(value)
+    dls.dls_solve(
+        ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
+        small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+        ra["eff_axis"], ra["eff_has_axis"],
+        small["eff_lim"], small["joint_w"], small["com_w"], small["support_w"], *bundles.pose(crowd),
+        *bundles.goal(crowd),
+        crowd.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
+        crowd.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
+        crowd.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
+        crowd.scratch("dls_jac", ti.f32, (N, R, D + 1)), crowd.scratch("dls_rows", ti.f32, (N, 2, R)),
+        crowd.scratch("dls_sys", ti.f32, (N, R, R)),
+        req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
+        req.rest_weight, req.velocity_weight, req.balance_weight, *bundles.result(crowd),
+    )
+
+
+def _free(crowd, req) -> None:
+    """DLS of one effector on a constraint-free rig: a closed-form 3 x 3 system, characters as SIMD lanes."""
+    from crowd_ik.kernels import dls_lanes, lane_plan
+
+    ra, ti, rig = crowd.rig_arrays, crowd.ti, crowd.rig
+    cfg = dls_settings(rig, req.damping)
+    on_path_np = np.zeros(rig.n_joints, np.int32)
+    path = rig.path_to_root(rig.effectors[0].joint)
+    on_path_np[path] = rig.arrays["kind"][path] > 0
+    on_path = crowd.scratch("dls_on_path", ti.i32, (rig.n_joints,))
+    on_path.from_numpy(on_path_np)
+    eff_lim = crowd.scratch("dls_eff_lim", ti.f32, cfg["eff_lim"].shape)
+    eff_lim.from_numpy(cfg["eff_lim"])
+    head = (ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, *bundles.pose(crowd),
+            *bundles.goal(crowd, orientations=False))
+    L = settings.lanes()
+    if L == 1:  # CUDA: one character per GPU thread, each pose in local arrays
+        from crowd_ik.kernels import dls_free
+
+        dls_free.dls_solve_free(*head, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
+                                *bundles.result(crowd), rig.n_joints)
+        return
+    # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
+    dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
+        *head, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
+        *bundles.result(crowd),
+    )

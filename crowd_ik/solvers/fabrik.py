@@ -1,0 +1,55 @@
+"""FABRIK for a Crowd: which kernel solves a request, and its launch.
+
+A constraint-free rig without orientation targets runs the lane kernels (kernels/fabrik_lanes.py:
+characters as SIMD lanes, then the rotations recovered in a second pass); everything else, and
+CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py).
+"""
+
+from __future__ import annotations
+
+from crowd_ik.solvers import bundles, settings
+
+
+def solve(crowd, req) -> None:
+    if crowd.rig.constraint_free and crowd.buffers.orient_zero:
+        _free(crowd, req.max_iterations, req.tolerance)
+    else:
+        _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1)
+
+
+def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteration: int) -> None:
+    """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
+    constraint-free rigs without orientation targets (the rotations of the final positions, once)."""
+    from crowd_ik.kernels import fabrik
+
+    ti, J = crowd.ti, crowd.rig.n_joints
+    work = crowd.scratch("fabrik_pos", ti.math.vec3, (crowd.n, J))
+    acc_w = crowd.scratch("fabrik_w", ti.f32, (crowd.n, J))
+    fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w,
+                        max_iterations, tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero),
+                        *bundles.result(crowd))
+
+
+def _free(crowd, max_iterations: int, tolerance: float) -> None:
+    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
+    from crowd_ik.kernels import fabrik_lanes, lane_plan
+
+    ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
+    J, E = crowd.rig.n_joints, crowd.rig.n_effectors
+    if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
+        _general(crowd, max_iterations, tolerance, recover_each_iteration=0)
+        return
+    LP = lane_plan.pass_lanes(L)
+    P = lane_plan.packets(crowd.n, L)
+    V = ti.types.vector(L, ti.f32)
+    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
+    b = crowd.buffers
+    fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
+        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
+        lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd),
+    )
+    fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
+        ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
+        min(P, lane_plan.MAX_STREAMS), b.error, b.iterations,
+    )

@@ -1,0 +1,83 @@
+"""A solve's arguments checked at the edge: Crowd.solve's inputs turned into what the kernels honour.
+
+Every problem is a ValueError naming the argument and the value (DESIGN "Public API", bounds).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from crowd_ik.checks import MAX_ITERATIONS, as_array, is_number, non_negative, positive_int
+from crowd_ik.rig import MAX_EXTENT, Rig
+from crowd_ik.solvers.registry import METHODS
+
+
+@dataclass
+class SolveRequest:
+    """One solve: targets (N, E, dim), weights (N, E) float32, orientations (N, E, 3) unit rows or None,
+    and the secondary terms (DLS objectives and settings)."""
+
+    method: str
+    max_iterations: int
+    tolerance: float
+    targets: np.ndarray
+    weights: np.ndarray
+    orientations: np.ndarray | None
+    rest_weight: float = 0.0
+    velocity_weight: float = 0.0
+    damping: float | None = None
+    joint_weights: np.ndarray | None = None
+    balance_weight: float = 0.0
+
+    @property
+    def plain(self) -> bool:
+        """True when no secondary term shapes the solve (only targets and weights)."""
+        return (self.orientations is None and self.rest_weight == 0 and self.velocity_weight == 0
+                and self.balance_weight == 0 and self.joint_weights is None)
+
+
+def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, weights, orientations,
+                  rest_weight, velocity_weight, damping, joint_weights, balance_weight) -> SolveRequest:
+    """The checked SolveRequest for n characters of `rig`, or a ValueError naming the argument."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
+    max_iterations = positive_int(max_iterations, "max_iterations", MAX_ITERATIONS)
+    if not is_number(tolerance) or not (math.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"tolerance: expected a positive number (got {tolerance!r})")
+    E, dim = rig.n_effectors, rig.dim
+    if np.ndim(targets) == 2 and np.shape(targets) == (E, dim) and n == 1:
+        targets = np.asarray(targets)[None]
+    tgt = as_array(targets, "targets", (n, E, dim), limit=MAX_EXTENT)
+    if np.shape(targets) != (n, E, dim):
+        raise ValueError(f"targets: expected shape {(n, E, dim)} (got {np.shape(targets)})")
+    w = np.ones((n, E), np.float32) if weights is None else as_array(weights, "weights", (n, E))
+    if np.any(w < 0):
+        raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
+    if not np.any(w > 0):
+        raise ValueError("weights: at least one effector needs a positive weight")
+    orient = None
+    if orientations is not None:
+        orient = as_array(orientations, "orientations", (n, E, 3))
+        norms = np.sqrt(np.einsum("nek,nek->ne", orient, orient))
+        no_axis = np.nonzero(np.any(norms > 0, axis=0) & (rig.arrays["eff_has_axis"] == 0))[0]
+        if no_axis.size:
+            name = rig.effector_names[no_axis[0]]
+            raise ValueError(f"orientations: effector {name!r} has no local axis to orient (give zeros for it)")
+        orient = orient / np.maximum(norms, 1e-30)[..., None]  # zero rows stay zero
+    req = SolveRequest(
+        method=method, max_iterations=max_iterations, tolerance=float(tolerance), targets=tgt, weights=w,
+        orientations=orient,
+        rest_weight=non_negative(rest_weight, "rest_weight"),
+        velocity_weight=non_negative(velocity_weight, "velocity_weight"),
+        damping=None if damping is None else non_negative(damping, "damping"),
+        joint_weights=None if joint_weights is None else as_array(joint_weights, "joint_weights", (rig.n_dof,)),
+        balance_weight=non_negative(balance_weight, "balance_weight"),
+    )
+    if req.balance_weight > 0 and not any(e.name.startswith("foot") for e in rig.effectors):
+        raise ValueError("balance_weight: the rig has no foot effectors")
+    if req.joint_weights is not None and np.any(req.joint_weights < 0):
+        raise ValueError(f"joint_weights: must be >= 0 (got {float(req.joint_weights.min())})")
+    return req
