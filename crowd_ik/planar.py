@@ -379,6 +379,10 @@ def follow(thetas, delta, threshold: float = 0.05, max_depth: int = 10, *, lengt
     Beyond ``max_depth`` it gives up ("target lost"). Returns (angles, reached): on failure the
     angles after the last accepted sub-step. ``history``: if a list, each accepted sub-step's
     angles are appended.
+
+    Besides the lab's rule, reached is False when the tip ends farther than ``threshold`` (Euclidean,
+    metres) from the goal tip + ``delta``: on a straight chain pulled along its axis J^+ delta is zero,
+    so every sub-step passes the residual test while nothing moves (issue 15).
     """
     t, l = _pose(thetas, lengths)
     dp = _floats("delta", delta, (2,))
@@ -402,4 +406,7 @@ def follow(thetas, delta, threshold: float = 0.05, max_depth: int = 10, *, lengt
         return move(0.5 * d, depth + 1) and move(0.5 * d, depth + 1)
 
     reached = move(dp, 0) if t.size else bool(np.abs(dp).sum() < threshold)
+    if reached and t.size:
+        goal = _tip(t, l) + dp
+        reached = bool(np.linalg.norm(_tip(state[0], l) - goal) <= threshold)
     return state[0], reached

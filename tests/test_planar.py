@@ -237,11 +237,15 @@ def test_regularized_l1_is_sparser_than_l2():
 
 def test_follow_small_reachable_delta():
     start = np.array([0.3, 0.4, 0.5, 0.2])
-    for delta in ([0.02, -0.03], [0.5, -0.7]):
+    for delta in ([0.02, -0.03], [0.3, -0.4]):  # [0.3, -0.4]: two sub-steps
         t, reached = planar.follow(start, delta)
         assert reached
         moved = planar.chain(t) - planar.chain(start)
-        assert np.abs(moved - delta).sum() < 0.05 * 2  # each accepted sub-step within the threshold
+        assert np.linalg.norm(moved - delta) <= 0.05  # reached: the tip ends within the threshold
+    # two accepted sub-steps that drift 6.6 cm in all: each passed the lab's test, the whole is not reached
+    t, reached = planar.follow(start, [0.5, -0.7])
+    assert np.linalg.norm(planar.chain(t) - planar.chain(start) - [0.5, -0.7]) > 0.05
+    assert not reached
 
 
 def test_follow_far_jump_is_lost_with_last_accepted_angles():
@@ -260,6 +264,32 @@ def test_follow_gives_up_at_max_depth_and_keeps_the_start():
     t, reached = planar.follow(start, [1.0, 1.0], max_depth=0)
     assert not reached
     np.testing.assert_array_equal(t, start)
+
+
+@pytest.mark.parametrize("delta", [[-0.3, 0.0], [-1.0, 0.0], [0.5, 0.0]])
+def test_follow_fails_when_the_tip_ends_off_the_goal(delta):
+    # a straight chain pulled along its axis: J^+ delta = 0, so each sub-step passes the lab's residual test
+    # while the tip stays at (3, 0); the goal (closed form) is (3 + dx, 0), |dx| >= 0.3 > threshold
+    start = np.zeros(3)
+    t, reached = planar.follow(start, delta)
+    goal = planar.chain(start) + np.asarray(delta)
+    assert np.linalg.norm(planar.chain(t) - goal) > 0.05
+    assert not reached
+
+
+def test_follow_reached_means_within_threshold_of_the_goal():
+    rng = np.random.default_rng(3)
+    n_reached = 0
+    for _ in range(60):
+        start = rng.uniform(-1.0, 1.0, 4)
+        delta = rng.uniform(-0.6, 0.6, 2)
+        t, reached = planar.follow(start, delta)
+        off = np.linalg.norm(planar.chain(t) - (planar.chain(start) + delta))
+        if not reached:
+            continue
+        n_reached += 1
+        assert off <= 0.05
+    assert n_reached > 30
 
 
 # --- validation --------------------------------------------------------------------------------
