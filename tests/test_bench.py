@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from crowd_ik.bench import run as bench
+from crowd_ik.bench import baseline, options, report, workloads
 from crowd_ik.commands.cli import main
 
 TINY = ["bench", "--quick", "--chars", "50,200", "--rig", "chain16,humanoid", "--solver", "fabrik", "--repeats", "1",
@@ -54,33 +54,33 @@ def test_bad_values_exit_2_with_one_line(capsys, tmp_path, flag, value, expect):
 def test_quick_changes_only_defaults():
     args = type("A", (), dict(quick=True, chars="7,3,7", solver=None, rig="humanoid", arch=None, threads=None,
                               repeats=None, baseline_budget=None, game_chars=None))()
-    opts = bench.resolve_options(args)
+    opts = options.resolve_options(args)
     assert opts.chars == (3, 7) and opts.rigs == ("humanoid",)  # explicit flags win, sorted and deduplicated
-    assert opts.solvers == bench.QUICK["solvers"] and opts.repeats == 1 and opts.budget == bench.QUICK["budget"]
+    assert opts.solvers == options.QUICK["solvers"] and opts.repeats == 1 and opts.budget == options.QUICK["budget"]
     args.quick, args.chars, args.rig = False, None, None
-    full = bench.resolve_options(args)
+    full = options.resolve_options(args)
     assert full.chars == (100, 1000, 10000, 100000) and full.solvers == ("fabrik", "dls", "ccd")
     assert full.rigs == ("chain16", "humanoid") and full.repeats >= 3
 
 
 def test_cuda_refused_without_gpu(tmp_path):
-    if bench.cuda_available():
+    if options.cuda_available():
         pytest.skip("this machine has a CUDA GPU")
     out = tmp_path / "x.json"
     proc = subprocess.run([sys.executable, "-m", "crowd_ik", "bench", "--quick", "--arch", "cuda", "--json", str(out)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stdout == "" and not out.exists()
     assert proc.stderr.splitlines() == ["crowd-ik: --arch cuda: no CUDA GPU is available to Taichi on this machine"]
-    assert bench.resolve_arches(()) == ("cpu",)
+    assert options.resolve_arches(()) == ("cpu",)
 
 
 def test_cuda_default_sweep_adds_a_million_chain16_characters():
     args = type("A", (), dict(quick=False, chars=None, solver="fabrik", rig=None, arch=None, threads=None,
                               repeats=None, baseline_budget=None, game_chars=None))()
-    opts = bench.resolve_options(args)
-    cuda = bench.cells_for(opts, "cuda")
+    opts = options.resolve_options(args)
+    cuda = options.cells_for(opts, "cuda")
     assert ("chain16", "fabrik", 1_000_000) in cuda and ("humanoid", "fabrik", 1_000_000) not in cuda
-    assert all(n <= 100_000 for _, _, n in bench.cells_for(opts, "cpu"))
+    assert all(n <= 100_000 for _, _, n in options.cells_for(opts, "cpu"))
 
 
 def test_existing_outputs_are_not_clobbered(capsys, tmp_path):
@@ -107,18 +107,18 @@ def test_compare_file_is_checked_before_running(capsys, tmp_path):
 
 # ------------------------------------------------------------------------------------------------ workloads
 
-@pytest.mark.parametrize("name", bench.RIGS)
+@pytest.mark.parametrize("name", options.RIGS)
 def test_workload_prefix_is_the_smaller_workload(name):
-    big, small = bench.make_workload(name, 300, 40), bench.make_workload(name, 40)
+    big, small = workloads.make_workload(name, 300, 40), workloads.make_workload(name, 40)
     assert big.n == small.n == 40
     np.testing.assert_array_equal(big.angles, small.angles)
     np.testing.assert_allclose(big.targets - big.roots[:, None], small.targets - small.roots[:, None], atol=2e-5)
-    again = bench.make_workload(name, 300, 40)
+    again = workloads.make_workload(name, 300, 40)
     np.testing.assert_array_equal(big.targets, again.targets)
 
 
 def test_chain16_workload_targets_fill_the_ball():
-    wl = bench.make_workload("chain16", 4000)
+    wl = workloads.make_workload("chain16", 4000)
     reach = wl.rig.reach[0]
     r = np.linalg.norm(wl.targets[:, 0] - wl.roots, axis=1)
     assert reach == pytest.approx(1.6) and wl.tolerance == pytest.approx(1.6e-3)
@@ -131,7 +131,7 @@ def test_chain16_workload_targets_fill_the_ball():
 def test_humanoid_workload_starts_in_limits_with_nearby_targets():
     from crowd_ik.geometry.fk import forward_kinematics
 
-    wl = bench.make_workload("humanoid", 500)
+    wl = workloads.make_workload("humanoid", 500)
     lo, hi = wl.rig.angle_limits()
     assert np.all(wl.angles >= lo - 1e-6) and np.all(wl.angles <= hi + 1e-6)
     pos, _ = forward_kinematics(wl.rig, wl.roots.astype(np.float64), np.zeros(wl.n), wl.rotations())
@@ -144,24 +144,24 @@ def test_crowd_bytes_grow_per_character():
     from crowd_ik import Crowd, Rig
 
     rig = Rig.chain(16, 0.1, dim=3)
-    one, two = bench.crowd_bytes(Crowd(rig, 10)), bench.crowd_bytes(Crowd(rig, 20))
+    one, two = workloads.crowd_bytes(Crowd(rig, 10)), workloads.crowd_bytes(Crowd(rig, 20))
     assert two == 2 * one
     assert one >= 10 * rig.n_joints * (3 + 4 + 4 + 3) * 4  # root, local/world rotations, positions at least
 
 
 def test_baseline_full_cell_and_budget():
-    base = bench.Baseline(repeats=2, budget=30.0)
+    base = baseline.Baseline(repeats=2, budget=30.0)
     assert base.measure("chain16", "fabrik", 30) == 30
     got = base.summary("chain16", "fabrik", 30)
     assert got["numpy_n"] == 30 and got["numpy_repeats"] == 2
     assert got["numpy_success_rate"] == 1.0 and got["numpy_solves_per_s"] == pytest.approx(30 / got["numpy_time_s"])
-    starved = bench.Baseline(repeats=3, budget=1e-6)
-    assert starved.measure("chain16", "fabrik", 5000) == bench.BASELINE_PROBE
-    assert starved.summary("chain16", "fabrik", bench.BASELINE_PROBE)["numpy_repeats"] == 1
+    starved = baseline.Baseline(repeats=3, budget=1e-6)
+    assert starved.measure("chain16", "fabrik", 5000) == options.BASELINE_PROBE
+    assert starved.summary("chain16", "fabrik", options.BASELINE_PROBE)["numpy_repeats"] == 1
     # a later cell on the same subset reuses the earlier run
-    assert starved.measure("chain16", "fabrik", 7000) == bench.BASELINE_PROBE
-    assert starved.summary("chain16", "fabrik", bench.BASELINE_PROBE)["numpy_repeats"] == 1
-    assert bench.Baseline(repeats=1, budget=0.0).measure("chain16", "fabrik", 30) is None
+    assert starved.measure("chain16", "fabrik", 7000) == options.BASELINE_PROBE
+    assert starved.summary("chain16", "fabrik", options.BASELINE_PROBE)["numpy_repeats"] == 1
+    assert baseline.Baseline(repeats=1, budget=0.0).measure("chain16", "fabrik", 30) is None
 
 
 # ------------------------------------------------------------------------------------------------ end to end
@@ -191,25 +191,25 @@ def test_run_writes_json_with_meta_and_records(tiny_run):
 def test_run_reports_the_game_and_targets(tiny_run):
     _, data, _ = tiny_run
     (game,) = data["game"]
-    assert game["n"] == 32 and game["pool_size"] == bench.GAME_POOL and game["warm"]["max_iterations"] == 4
+    assert game["n"] == 32 and game["pool_size"] == options.GAME_POOL and game["warm"]["max_iterations"] == 4
     assert game["warm"]["mean_iterations"] <= 4
     assert game["frame_ms"]["median"] == pytest.approx(
         game["warm"]["solve_ms"]["median"] + game["capsules_ms"]["median"] + game["bullets_ms"]["median"], rel=0.5)
-    assert game["fits"] == (game["frame_ms"]["p95"] <= bench.FRAME_MS) and game["bullets_alive"] > 0
+    assert game["fits"] == (game["frame_ms"]["p95"] <= options.FRAME_MS) and game["bullets_alive"] > 0
     names = {t["name"] for t in data["targets"]}
     assert "chain16 fabrik speed-up vs NumPy" in names and any(n.startswith("game frame") for n in names)
 
 
 def test_game_scene_times_the_world_as_played():
-    sc = bench.game_scene(6, name="duel", warmup=30)
+    sc = workloads.game_scene(6, name="duel", warmup=30)
     assert sc["scene"] == "duel" and sc["steps"] == 6 and sc["warmup_steps"] == 30 and sc["max_iterations"] == 4
     assert 0 < sc["ik_ms"]["median"] and 0 <= sc["bullets_ms"]["median"]
     assert sc["frame_ms"]["max"] <= sc["ik_ms"]["max"] + sc["bullets_ms"]["max"] + 1e-9
     assert sc["step_ms"]["median"] >= sc["ik_ms"]["median"]  # the whole step holds both phases
-    assert 0.0 <= sc["solving"] <= 1.0 and sc["fits"] == (sc["frame_ms"]["p95"] <= bench.FRAME_MS)
-    line = bench.format_scene(sc)
+    assert 0.0 <= sc["solving"] <= 1.0 and sc["fits"] == (sc["frame_ms"]["p95"] <= options.FRAME_MS)
+    line = report.format_scene(sc)
     assert "as played, duel scene" in line and ("fits" in line or "does NOT fit" in line)
-    names = [t["name"] for t in bench.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(p95=1.0), fits=True,
+    names = [t["name"] for t in report.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(p95=1.0), fits=True,
                                                                  scene=sc)])]
     assert any(n.startswith("game step as played, duel scene") for n in names)
 
@@ -244,7 +244,7 @@ def test_compare_lines_compute_the_change():
     new = dict(records=[dict(rec, solves_per_s=150.0, speedup=12.0)],
                game=[dict(arch="cpu", n=10, frame_ms=dict(median=10.0),
                           scene=dict(scene="stress_10k", frame_ms=dict(p95=15.0)))])
-    text = "\n".join(bench.compare_lines(old, new))
+    text = "\n".join(report.compare_lines(old, new))
     assert "+50.0%" in text and "10.0x -> 12.0x" in text and "only in OLD: cpu chain16 dls N=10" in text
     assert "20.00 ms -> 10.00 ms (-50.0%)" in text
     assert "stress_10k as played: IK + bullets p95 20.00 ms -> 15.00 ms (-25.0%)" in text

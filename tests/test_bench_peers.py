@@ -5,7 +5,7 @@ import pytest
 
 pytest.importorskip("numba")
 
-from crowd_ik.bench import peers as bench_peers, run as bench  # noqa: E402
+from crowd_ik.bench import peers as bench_peers, workloads  # noqa: E402
 
 
 def _chain_start(n, J=17, bone=0.1):
@@ -43,7 +43,7 @@ def test_measure_fills_chain16_records_and_targets():
     records = [dict(arch="cpu", rig="chain16", solver="fabrik", n=64, solves_per_s=1e6, success_rate=1.0),
                dict(arch="cpu", rig="chain16", solver="ccd", n=64, solves_per_s=1e6, success_rate=1.0),
                dict(arch="cpu", rig="humanoid", solver="fabrik", n=64, solves_per_s=1e6, success_rate=1.0)]
-    filled = bench_peers.measure(records, bench.make_workload, repeats=1, threads=1)
+    filled = bench_peers.measure(records, workloads.make_workload, repeats=1, threads=1)
     assert filled == [records[0]]
     r = records[0]
     assert r["numba_f64_success_rate"] >= 0.95 and r["numba_f64_mean_iterations"] > 1

@@ -118,12 +118,12 @@ def test_warm_started_frames_move_limbs_smoothly():
     flips. Before the two-bone step a leg or arm could swing 0.8 m in one frame; now no joint moves 0.5 m, and a
     character moves a joint more than 10 cm in under 1 % of its frames (an arm stretching as its target leaves
     reach)."""
-    from crowd_ik.bench import run as bench
+    from crowd_ik.bench import options, workloads
     n = 400
-    wl = bench.game_workload(n)
-    crowd = cik.Crowd(wl.rig, n=n, spacing=bench.SPACING)
+    wl = workloads.game_workload(n)
+    crowd = cik.Crowd(wl.rig, n=n, spacing=options.SPACING)
     crowd.solve(wl.targets, max_iterations=100, tolerance=wl.tolerance)
-    drift = bench._smooth_offsets(n, wl.rig.n_effectors, 7)
+    drift = workloads._smooth_offsets(n, wl.rig.n_effectors, 7)
     feet = np.array([name.startswith("foot") for name in wl.rig.effector_names])
     before = crowd.joint_positions()
     jumps = 0

@@ -12,7 +12,7 @@ from pathlib import Path
 from crowd_ik.solvers import registry
 
 ROOT = Path(__file__).resolve().parent.parent
-BENCH = {"crowd_ik/bench/run.py", "crowd_ik/bench/peers.py"}  # the twins are the bench's baseline
+BENCH = {"crowd_ik/bench/baseline.py", "crowd_ik/bench/peers.py"}  # the twins are the bench's baseline
 
 
 def _modules(folder: str):
@@ -117,3 +117,37 @@ def test_the_circle_check_sees_circles_deferred_imports_and_re_exports(monkeypat
     graph = import_graph()
     assert "crowd_ik.game.world" in graph["crowd_ik.io.clip"]  # record_clip's deferred import
     assert "crowd_ik.runtime" in graph["crowd_ik.crowd"]  # `from crowd_ik import runtime`
+
+
+def test_method_names_are_spelled_only_in_the_registry():
+    # "follow" is also an ordinary word (the camera's follow mode): as a method name it is checked where
+    # methods are chosen - the mouse demo and the command line
+    names = set(registry.METHODS) | set(registry.PLANAR_METHODS) - {registry.FOLLOW}
+    method_modules = ("crowd_ik/mouse/", "crowd_ik/commands/", "crowd_ik/planar.py")
+    found = []
+    for name, tree in _modules("crowd_ik"):
+        if name.startswith("crowd_ik/reference/") or name == "crowd_ik/solvers/registry.py":
+            continue
+        names_here = names | ({registry.FOLLOW} if name.startswith(method_modules) else set())
+        exempt = set()  # __all__ lists name functions (planar.dls), not methods
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in node.targets):
+                exempt |= {id(c) for c in ast.walk(node.value)}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and node.value in names_here and id(node) not in exempt:
+                found.append(f"{name}:{node.lineno} {node.value!r}")
+    assert found == []
+
+
+def test_the_registry_is_what_the_command_line_and_the_scene_offer():
+    from crowd_ik import scene
+    from crowd_ik.bench import options as bench
+    from crowd_ik.commands.cli import build_parser
+
+    assert bench.SOLVERS == registry.METHODS
+    assert scene.Solver().method == registry.DEFAULT
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    play = next(a for a in sub.choices["play"]._actions if "--solver" in a.option_strings)
+    mouse = next(a for a in sub.choices["mouse"]._actions if "--method" in a.option_strings)
+    assert tuple(play.choices) == registry.METHODS and tuple(mouse.choices) == registry.PLANAR_METHODS
