@@ -107,6 +107,7 @@ class JobRenderer:
         from crowd_ik.io.labels import LabelsWriter
         from crowd_ik.io.stats import summary
         from crowd_ik.io.video import open_sink
+        from crowd_ik.session import frames
 
         scene = job.scene
         video_path = folder / "video.mp4"
@@ -117,9 +118,7 @@ class JobRenderer:
         with open_sink(video_path, scene.video.fps, size) as sink:
             labels = LabelsWriter(labels_path) if labels_path is not None else None
             try:
-                for k in range(n):
-                    if k:  # video frame k shows the world after k steps, as in play
-                        world.step()
+                for k in frames(world, n):  # frame k shows the world after k steps, as in play
                     sink.write(world.render())
                     if labels is not None:
                         labels.add(world, k)
