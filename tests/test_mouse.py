@@ -16,17 +16,9 @@ from xwindow import crowd_ik_window, xdo
 from crowd_ik import planar
 from crowd_ik.commands.cli import main
 from crowd_ik.ease import load_keyframes
-from crowd_ik.mouse.session import (
-    LOST_TOL,
-    ChainSession,
-    Recorder,
-    chain_limits,
-    load_path,
-    path_frames,
-    replay_keyframes,
-    replay_path,
-    rest_pose,
-)
+from crowd_ik.mouse.paths import Recorder, load_path, path_frames
+from crowd_ik.mouse.replay import replay_keyframes, replay_path
+from crowd_ik.mouse.session import LOST_TOL, ChainSession, chain_limits, rest_pose
 from crowd_ik.mouse.view import BONE, HumanoidSession, View, reachable_mask, sample_reachable, to_gui_image
 from crowd_ik.io.video import read_frames, read_video
 

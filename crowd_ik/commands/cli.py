@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     mouse.add_argument("-o", "--output", default=None, help="OUT.mp4 | OUT.webm | DIR/")
     mouse.add_argument("--force", action="store_true", help="overwrite existing outputs")
     _add_common_runtime(mouse)
-    mouse.set_defaults(handler="crowd_ik.mouse.session:run")
+    mouse.set_defaults(handler="crowd_ik.commands.mouse:run")
 
     bench = sub.add_parser("bench", help="IK throughput against character count, solver and backend, beside a NumPy baseline")
     bench.add_argument("--chars", default=None, help="comma-separated character counts (default 100,1000,10000,100000)")

@@ -220,7 +220,7 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
 
 
 def display_available() -> bool:
-    """True when $DISPLAY names an X server that accepts a connection."""
-    from crowd_ik.mouse.session import display_available as check
+    """True when $DISPLAY names an X server that accepts a connection (view.display)."""
+    from crowd_ik.view.display import display_available as check
 
     return check()
