@@ -20,9 +20,19 @@ def _modules(folder: str):
         yield path.relative_to(ROOT).as_posix(), ast.parse(path.read_text(), filename=str(path))
 
 
+def _type_checking_blocks(tree) -> set[int]:
+    """ids of the nodes under `if TYPE_CHECKING:` (annotations only: never imported at run time)."""
+    return {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+            and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING"
+            for stmt in node.body for n in ast.walk(stmt)}
+
+
 def _imports(tree) -> set[str]:
     out = set()
+    skip = _type_checking_blocks(tree)
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module:
@@ -68,7 +78,10 @@ def import_graph() -> dict[str, set[str]]:
     graph = {}
     for mod, tree in trees.items():
         deps = set()
+        skip = _type_checking_blocks(tree)
         for node in ast.walk(tree):
+            if id(node) in skip:
+                continue
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:

@@ -20,10 +20,14 @@ from __future__ import annotations
 import os
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from crowd_ik.io.skeleton import Tree, joint_matrices, make_tree, matrix_to_quat, yaw_matrix
+
+if TYPE_CHECKING:  # annotations only: rig.py builds rigs from these modules' trees
+    from crowd_ik.rig import Rig
 
 TEMPLATE_COUNT = (8, 8)  # template capsule resolution (trimesh count): 66 vertices a capsule
 BODY_COLOR = (0.55, 0.62, 0.75, 1.0)  # RGBA base colour of the animated bodies

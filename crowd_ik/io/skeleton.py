@@ -17,8 +17,12 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # annotations only: rig.py builds rigs from these modules' trees
+    from crowd_ik.rig import Rig
 
 
 ZERO_BONE = 1e-6  # metres: the length a zero offset is given
