@@ -7,7 +7,7 @@ Joint kind codes equal their DOF counts: 0 fixed, 1 hinge, 2 universal, 3 ball.
 
 import taichi as ti
 
-from crowd_ik.solvers.settings import GIMBAL
+from crowd_ik.solvers.settings import CONE_BOX_STEPS, GIMBAL
 
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
@@ -201,8 +201,9 @@ def safe_normalize(v, fallback):
 
 @ti.func
 def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), lim_p: ti.template(), s, cone, bone):
-    """Project q onto the joint's DOFs and clamp it to its limits (cone on the swing of `bone`, then boxes).
-    lim_p: the limits' pseudo-angles, to skip the Euler decomposition where no box limit bites."""
+    """Project q onto the joint's DOFs and clamp it to its limits (cone on the swing of `bone`, then boxes; where
+    the box clamp leaves the cone again, cone_within_box finds angles inside both). lim_p: the limits'
+    pseudo-angles, to skip the Euler decomposition where no box limit bites."""
     out = q
     if kind == 1:
         tw, p, ok = twist_part(q, ax0)
@@ -230,6 +231,33 @@ def constrain_rotation(kind, ax0, ax1, q, lo: ti.template(), hi: ti.template(), 
                      ti.math.clamp(a.z, lo[s + 2], hi[s + 2]))
             if c.x != a.x or c.y != a.y or c.z != a.z:  # rebuild only when a limit bites
                 out = euler_xyz_to_quat(c.x, c.y, c.z)
+                if cone > 0.0 and bone.norm_sqr() > 0.0:
+                    out = cone_within_box(out, c, lo, hi, s, cone, bone)
+    return out
+
+
+@ti.func
+def cone_within_box(q, c, lo: ti.template(), hi: ti.template(), s, cone, bone):
+    """q = the rotation of box-clamped Euler angles c; if the box clamp put `bone` back outside the cone, the
+    angles z + t (c - z) with the largest t in [0, 1] whose bone lies inside it (bisection), z = the box's point
+    nearest rest: inside the box exactly and the cone to ~2^-CONE_BOX_STEPS of the range (z itself where even
+    z leaves the cone)."""
+    out = q
+    cos_cone = ti.cos(cone)
+    if qrot(q, bone).dot(bone) < cos_cone:
+        z = vec3(ti.math.clamp(0.0, lo[s], hi[s]), ti.math.clamp(0.0, lo[s + 1], hi[s + 1]),
+                 ti.math.clamp(0.0, lo[s + 2], hi[s + 2]))
+        t0 = 0.0
+        t1 = 1.0
+        for _ in range(CONE_BOX_STEPS):
+            t = 0.5 * (t0 + t1)
+            m = z + t * (c - z)
+            if qrot(euler_xyz_to_quat(m.x, m.y, m.z), bone).dot(bone) >= cos_cone:
+                t0 = t
+            else:
+                t1 = t
+        m = z + t0 * (c - z)
+        out = euler_xyz_to_quat(m.x, m.y, m.z)
     return out
 
 

@@ -94,6 +94,30 @@ def test_constrain_rotation_with_a_cone_matches_the_numpy_twin():
     assert _distance(got, want).max() < 1e-5  # float32 acos near the cone's edge
 
 
+@pytest.mark.parametrize("lo, hi, cone, bone", [
+    ([-2.0, -0.5, -0.35], [0.5, 0.7, 1.0], 0.8, (0.0, -1.0, 0.0)),  # a hip's box with a cone about its thigh
+    ([-1.2, -0.4, -0.9], [1.2, 0.4, 0.9], 0.6, (0.0, -1.0, 0.0)),
+    ([-0.5, -1.0, -1.5], [0.5, 1.0, 1.5], 1.0, (0.6, -0.8, 0.0)),
+])
+def test_a_cone_and_a_box_both_hold_after_the_projection(lo, hi, cone, bone):
+    # issue 15: the box clamp after the cone put the bone up to 1.4 rad back outside the cone
+    rng = np.random.default_rng(11)
+    q = _random_quats(rng, 4000)
+    bone = np.array(bone)
+    want = rq.constrain_rotation(3, np.zeros((0, 3)), q, np.array(lo), np.array(hi), cone, bone)
+    got = _kernel_constrain(3, [], q, lo, hi, cone=cone, bone=tuple(bone))
+    assert _distance(got, want).max() < 1e-4  # float32 trigonometry in the bisection's tests
+    for out, tol in ((want, 1e-6), (got.astype(np.float64), 1e-3)):
+        ang = np.arccos(np.clip(np.sum(rq.qrot(out, np.broadcast_to(bone, out.shape[:-1] + (3,))) * bone, -1), -1, 1))
+        assert ang.max() <= cone + tol
+        a = rq.quat_to_euler_xyz(out)
+        assert np.all(a >= np.array(lo) - 1e-4) and np.all(a <= np.array(hi) + 1e-4)
+    # the projection still leaves rotations inside both alone, and the cone bites for many of the others
+    inside = rq.constrain_rotation(3, np.zeros((0, 3)), want, np.array(lo), np.array(hi), cone, bone)
+    assert _distance(inside, want).max() < 1e-6
+    assert np.mean(ang > cone - 1e-2) > 0.2
+
+
 def test_pseudo_angle_orders_directions_as_atan2_does():
     rng = np.random.default_rng(3)
     t = np.sort(rng.uniform(-np.pi, np.pi, 5000))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.solvers.limits import limit_pseudo_angles, pseudo_angle  # noqa: F401  (the twins' too)
-from crowd_ik.solvers.settings import GIMBAL  # |R02| from which XYZ is gimbal-locked
+from crowd_ik.solvers.settings import CONE_BOX_STEPS, GIMBAL  # GIMBAL: |R02| from which XYZ is gimbal-locked
 
 
 def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -131,8 +131,25 @@ def constrain_rotation(kind: int, axes: np.ndarray, q: np.ndarray, lo: np.ndarra
     if np.any(lo > -1e29) or np.any(hi < 1e29):
         a = quat_to_euler_xyz(out)
         c = np.clip(a, lo, hi)
-        out = np.where(np.any(c != a, axis=-1, keepdims=True), euler_xyz_to_quat(c), out)
+        rebuilt = euler_xyz_to_quat(c)
+        if cone > 0 and np.dot(bone, bone) > 0:
+            rebuilt = cone_within_box(rebuilt, c, lo, hi, cone, bone)
+        out = np.where(np.any(c != a, axis=-1, keepdims=True), rebuilt, out)
     return out
+
+
+def cone_within_box(q: np.ndarray, c: np.ndarray, lo, hi, cone: float, bone: np.ndarray) -> np.ndarray:
+    """Twin of quat.cone_within_box over (N, 4) rotations q of box-clamped angles c (N, 3); bone (3,) or (N, 3)."""
+    bone = np.broadcast_to(bone, q.shape[:-1] + (3,))
+    cos_cone = np.cos(cone)
+    outside = np.sum(qrot(q, bone) * bone, -1) < cos_cone
+    z = np.clip(np.zeros(3), lo, hi)
+    t0, t1 = np.zeros(c.shape[:-1]), np.ones(c.shape[:-1])
+    for _ in range(CONE_BOX_STEPS):
+        t = 0.5 * (t0 + t1)
+        inside = np.sum(qrot(euler_xyz_to_quat(z + t[..., None] * (c - z)), bone) * bone, -1) >= cos_cone
+        t0, t1 = np.where(inside, t, t0), np.where(inside, t1, t)
+    return np.where(outside[..., None], euler_xyz_to_quat(z + t0[..., None] * (c - z)), q)
 
 
 def best_angle_about(axis: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -11,7 +11,8 @@ import numpy as np
 
 from crowd_ik.geometry.fk import forward_kinematics, yaw_quat
 from crowd_ik.geometry.quat import (
-    axis_angle, euler_xyz_to_quat, joint_angles, joint_quat, qconj, qmul, qrot, quat_to_euler_xyz, twist_angle,
+    axis_angle, cone_within_box, euler_xyz_to_quat, joint_angles, joint_quat, qconj, qmul, qrot, quat_to_euler_xyz,
+    twist_angle,
     wrap_angle,
 )
 from crowd_ik.rig import Rig
@@ -60,7 +61,10 @@ def constrain_rotation(joint, lo: np.ndarray, hi: np.ndarray, q: np.ndarray, bon
         back = qmul(axis_angle(axis, ang - cone), out)
         out = np.where((has_bone & (ang > cone))[..., None], back, out)
     if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
-        out = euler_xyz_to_quat(np.clip(quat_to_euler_xyz(out), lo, hi))
+        c = np.clip(quat_to_euler_xyz(out), lo, hi)
+        out = euler_xyz_to_quat(c)
+        if cone > 0.0:
+            out = np.where(has_bone[..., None], cone_within_box(out, c, lo, hi, cone, bone), out)
     return out
 
 

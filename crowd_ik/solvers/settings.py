@@ -50,6 +50,10 @@ DLS_ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its 
 
 # ---------------------------------------------------------------------------------------------- rotations
 GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
+# A ball joint with a cone and box limits: when the box clamp puts the bone back outside its cone, the angles
+# are pulled toward the box's point nearest rest along a straight line, by this many bisection steps (the
+# cone then holds to ~range / 2^24, the box exactly).
+CONE_BOX_STEPS = 24
 
 # ---------------------------------------------------------------------------------------------- lanes
 LANE_CHOICES = (1, 2, 4, 8, 16, 32)
