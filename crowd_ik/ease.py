@@ -133,40 +133,17 @@ def load_keyframes(path) -> tuple[np.ndarray, np.ndarray]:
     Returns (durations (K,) seconds, poses (K, N) radians). Problems raise
     ValueError("path:LINE: problem (got value)"); a missing file raises FileNotFoundError.
     """
-    path = os.fspath(path)
-    with open(path, encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
-    rows: list[tuple[int, list[str]]] = []
-    header = None
-    for number, raw in enumerate(lines, start=1):
-        text = raw.strip()
-        if not text or text.startswith("#"):
-            continue
-        fields = [f.strip() for f in text.split(",")]
-        if header is None:
-            expected = ["duration_s"] + [f"theta{i}" for i in range(1, len(fields))]
-            if len(fields) < 2 or fields != expected:
-                raise ValueError(f"{path}:{number}: expected header duration_s,theta1,...,thetaN (got {text!r})")
-            header = fields
-            continue
-        if len(fields) != len(header):
-            raise ValueError(f"{path}:{number}: expected {len(header)} fields as in the header (got {len(fields)}: {text!r})")
-        rows.append((number, fields))
-    if header is None:
-        raise ValueError(f"{path}:1: expected header duration_s,theta1,...,thetaN (got an empty file)")
-    if not rows:
-        raise ValueError(f"{path}:{len(lines) + 1}: expected at least one key pose after the header (got none)")
+    from crowd_ik.io.csv_table import finite, read_table
 
-    values = np.empty((len(rows), len(header)))
-    for k, (number, fields) in enumerate(rows):
-        for j, field in enumerate(fields):
-            try:
-                v = float(field)
-            except ValueError:
-                v = np.nan
-            if not np.isfinite(v):
-                raise ValueError(f"{path}:{number}: {header[j]}: expected a finite number (got {field!r})")
-            values[k, j] = v
+    path = os.fspath(path)
+
+    def is_header(fields: list[str]) -> bool:
+        return len(fields) >= 2 and fields == ["duration_s"] + [f"theta{i}" for i in range(1, len(fields))]
+
+    table = read_table(path, is_header, "duration_s,theta1,...,thetaN", what="key pose")
+    values = np.empty((len(table.rows), len(table.header)))
+    for k, (number, fields) in enumerate(table.rows):
+        values[k] = [finite(path, number, name, f) for name, f in zip(table.header, fields)]
         dur = values[k, 0]
         if (k == 0 and dur < 0) or (k > 0 and dur <= 0):
             need = ">= 0 (a hold)" if k == 0 else "> 0"

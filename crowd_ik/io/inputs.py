@@ -17,6 +17,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from crowd_ik.io.csv_table import finite, read_table
+
 HEADER = ("frame", "move_x", "move_z", "aim_x", "aim_y", "aim_z", "fire")
 SETTINGS_TAG = "# crowd-ik play inputs:"
 SETTING_KEYS = ("scene", "seed", "fps", "size", "solver")
@@ -125,41 +127,21 @@ def load_inputs(path) -> InputLog:
         if Path(path).is_dir():
             raise ValueError(f"--inputs: {path}: is a folder, an inputs .csv file is expected")
         raise FileNotFoundError(f"--inputs: {path}: no such file")
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        lines = fh.read().splitlines()
-    settings: dict[str, str] = {}
-    settings_line = 0
-    header_seen = False
+    found: dict = {}
+
+    def settings_comment(number: int, text: str) -> None:
+        if text.startswith(SETTINGS_TAG) and not found:
+            found.update(settings=_parse_settings(path, number, text), line=number)
+
+    table = read_table(path, HEADER, ",".join(HEADER), max_rows=MAX_ROWS, on_comment=settings_comment)
     rows: list[PlayerInput] = []
-    for number, raw in enumerate(lines, start=1):
-        text = raw.strip()
-        if not text:
-            continue
-        if text.startswith("#"):
-            if text.startswith(SETTINGS_TAG) and not header_seen and not settings_line:
-                settings = _parse_settings(path, number, text)
-                settings_line = number
-            continue
-        fields = [f.strip() for f in text.split(",")]
-        if not header_seen:
-            if tuple(fields) != HEADER:
-                raise ValueError(f"{path}:{number}: expected the header {','.join(HEADER)} (got {text[:80]!r})")
-            header_seen = True
-            continue
-        if len(fields) != len(HEADER):
-            raise ValueError(f"{path}:{number}: expected {len(HEADER)} fields {','.join(HEADER)} "
-                             f"(got {len(fields)}: {text[:80]!r})")
+    for number, fields in table.rows:
         if fields[0] != str(len(rows)):
             raise ValueError(f"{path}:{number}: frame: expected {len(rows)} (rows count frames from 0 in order) "
                              f"(got {fields[0]!r})")
         values = []
         for name, f in zip(HEADER[1:6], fields[1:6]):
-            try:
-                v = float(f)
-            except ValueError:
-                v = math.nan
-            if not math.isfinite(v):
-                raise ValueError(f"{path}:{number}: {name}: expected a finite number (got {f!r})")
+            v = finite(path, number, name, f)
             if name.startswith("move") and abs(v) > 1.0:
                 raise ValueError(f"{path}:{number}: {name}: expected a number in [-1, 1] (got {f})")
             if name.startswith("aim") and abs(v) > MAX_AIM:
@@ -168,11 +150,5 @@ def load_inputs(path) -> InputLog:
         if fields[6] not in ("0", "1"):
             raise ValueError(f"{path}:{number}: fire: expected 0 or 1 (got {fields[6]!r})")
         rows.append(PlayerInput((values[0], values[1]), tuple(values[2:5]), fields[6] == "1"))
-        if len(rows) > MAX_ROWS:
-            raise ValueError(f"{path}:{number}: more than {MAX_ROWS} rows (got more)")
-    if not header_seen:
-        got = "an empty file" if not lines else "only comments"
-        raise ValueError(f"{path}:{len(lines) + 1}: expected the header {','.join(HEADER)} (got {got})")
-    if not rows:
-        raise ValueError(f"{path}:{len(lines) + 1}: expected at least one row after the header (got none)")
+    settings, settings_line = found.get("settings", {}), found.get("line", 0)
     return InputLog(path, tuple(rows), settings, settings_line)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crowd_ik.io.csv_table import finite, read_table
 from crowd_ik.mouse.session import MAX_FRAMES, SCENES
 
 # ---------------------------------------------------------------------------------------------
@@ -29,16 +30,6 @@ def resolve_input(path: str) -> Path:
     raise FileNotFoundError(f"{path}: no such file (shipped: {shipped})")
 
 
-def _number(path, number: int, name: str, field: str) -> float:
-    try:
-        v = float(field)
-    except ValueError:
-        v = math.nan
-    if not math.isfinite(v):
-        raise ValueError(f"{path}:{number}: {name}: expected a finite number (got {field!r})")
-    return v
-
-
 def load_path(path) -> tuple[np.ndarray, np.ndarray]:
     """Read a target path: header ``t,x,y`` (seconds, chain units), then one row per sample with t
     increasing. Blank lines and '#' lines are skipped. Returns (t (M,), xy (M, 2)).
@@ -46,31 +37,13 @@ def load_path(path) -> tuple[np.ndarray, np.ndarray]:
     Problems raise ValueError("path:LINE: problem (got value)").
     """
     path = os.fspath(path)
-    with open(path, encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
-    header, rows = None, []
-    for number, raw in enumerate(lines, start=1):
-        text = raw.strip()
-        if not text or text.startswith("#"):
-            continue
-        fields = [f.strip() for f in text.split(",")]
-        if header is None:
-            if fields != ["t", "x", "y"]:
-                raise ValueError(f"{path}:{number}: expected header t,x,y (got {text!r})")
-            header = fields
-            continue
-        if len(fields) != 3:
-            raise ValueError(f"{path}:{number}: expected 3 fields t,x,y (got {len(fields)}: {text!r})")
-        row = [_number(path, number, name, f) for name, f in zip(header, fields)]
+    table = read_table(path, ("t", "x", "y"), "t,x,y", max_rows=MAX_FRAMES)
+    rows = []
+    for number, fields in table.rows:
+        row = [finite(path, number, name, f) for name, f in zip(table.header, fields)]
         if rows and row[0] <= rows[-1][0]:
             raise ValueError(f"{path}:{number}: t: expected times increasing row by row (got {fields[0]} after {rows[-1][0]:g})")
         rows.append(row)
-        if len(rows) > MAX_FRAMES:
-            raise ValueError(f"{path}:{number}: more than {MAX_FRAMES} rows (got more)")
-    if header is None:
-        raise ValueError(f"{path}:1: expected header t,x,y (got an empty file)")
-    if not rows:
-        raise ValueError(f"{path}:{len(lines) + 1}: expected at least one row t,x,y after the header (got none)")
     a = np.array(rows, dtype=np.float64)
     return a[:, 0], a[:, 1:]
 
