@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from crowd_ik.commands.cli import main
-from crowd_ik.commands.export import capsule_vertices
+from crowd_ik.io.gltf import capsule_vertices
 from crowd_ik.game.world import World
 from crowd_ik.scene import load_scene
 
@@ -53,7 +53,7 @@ def test_glb_loads_back_with_one_mesh_per_body(tiny, tmp_path, frame):
 
 
 def test_a_downed_shooter_has_no_mesh():
-    from crowd_ik.commands.export import world_meshes
+    from crowd_ik.io.glb import world_meshes
     from crowd_ik.scene import scene_with
 
     scene = scene_with(load_scene(None), size=(96, 64), **{

@@ -6,10 +6,7 @@ a mesh, one mesh per body: `character_<i>` for each standing character, `shooter
 standing shooter, `player`, and `shards` / `bullets` when there are any. glTF's axes are the
 world's: y up, metres.
 
-The capsules are built from one trimesh capsule template, moved and scaled per capsule in one
-vectorised step (its upper hemisphere goes to the capsule's end b, the lower one to a; see
-crowd_ik.io.gltf.capsule_vertices).
-The file is written atomically and never clobbers an existing one without --force.
+The meshes are built by crowd_ik.io.glb. The file is written atomically and never clobbers an existing one without --force.
 
 `crowd-ik export SCENE --bvh OUT.bvh --character K [--frames N]` writes character K's motion as
 BVH (crowd_ik.io.clip: metres, y up, one BVH frame per video frame). SCENE is simulated as `play`
@@ -31,56 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from crowd_ik import runtime
-from crowd_ik.io.gltf import capsule_vertices
-from crowd_ik.io.output import atomic_path, check_writable
+from crowd_ik.io.glb import world_meshes, write_glb
+from crowd_ik.io.output import check_writable
 from crowd_ik.scene import load_scene
-
-def world_meshes(world) -> dict:
-    """{name: trimesh.Trimesh} of the world's current frame, one mesh per body (see the module docstring)."""
-    import trimesh
-
-    prim = world.primitives()
-    caps, sph = prim["capsules"], prim["spheres"]
-    names = list(prim["body_names"])
-    a = np.concatenate([caps["a"], sph["center"]])
-    b = np.concatenate([caps["b"], sph["center"]])
-    radius = np.concatenate([caps["radius"], sph["radius"]])
-    color = np.concatenate([caps["color"], sph["color"]])
-    body = np.concatenate([caps["body"], np.full(len(sph["center"]), len(names), np.int32)])
-    names.append("bullets")
-    keep = radius > 0.0  # fully faded shards have nothing left to export
-    a, b, radius, color, body = a[keep], b[keep], radius[keep], color[keep], body[keep]
-    verts, faces = capsule_vertices(a, b, radius)
-    V = verts.shape[1]
-    rgba = np.empty((len(a), 4), np.uint8)
-    rgba[:, :3] = np.clip(np.rint(color[:, ::-1] * 255.0), 0, 255)  # BGR -> RGB
-    rgba[:, 3] = 255
-    order = np.argsort(body, kind="stable")
-    bodies, starts = np.unique(body[order], return_index=True)
-    meshes = {}
-    for owner, idx in zip(bodies, np.split(order, starts[1:])):
-        k = len(idx)
-        mesh_faces = (faces[None, :, :] + (np.arange(k) * V)[:, None, None]).reshape(-1, 3)
-        meshes[names[owner]] = trimesh.Trimesh(
-            vertices=verts[idx].reshape(-1, 3),
-            faces=mesh_faces,
-            vertex_colors=np.repeat(rgba[idx], V, axis=0),
-            process=False,
-        )
-    return meshes
-
-
-def write_glb(path, meshes: dict, force: bool = False) -> Path:
-    """Write {name: mesh} as a binary glTF scene, atomically and without clobbering."""
-    import trimesh
-
-    scene = trimesh.Scene()
-    for name, mesh in meshes.items():
-        scene.add_geometry(mesh, geom_name=name, node_name=name)
-    with atomic_path(path, force) as tmp:
-        tmp.write_bytes(scene.export(file_type="glb"))
-    return Path(path)
-
 
 def _pick(text: str, valid: list[int], source: str) -> list[int]:
     """--characters "all" or "K,L,...": indices among valid (a scene's 0..N-1, or those a clip holds)."""
@@ -249,4 +199,4 @@ def run(args) -> int:
     return 0
 
 
-__all__ = ["run", "run_bvh", "run_animated", "world_meshes", "write_glb", "capsule_vertices"]
+__all__ = ["run", "run_bvh", "run_animated"]
