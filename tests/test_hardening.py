@@ -17,18 +17,11 @@ import pytest
 from crowd_ik.commands.cli import main
 from crowd_ik.io.video import read_video
 from crowd_ik.scene import parse_scene, scene_with
+from tiny_scenes import tiny_scene
 
 BAD_SCENES = sorted((Path(__file__).parent / "data" / "bad_scenes").glob("*.toml"))
 
-TINY = """
-seed = 3
-characters = { count = 6, spacing = 1.5 }
-shooters = { count = 2, fire_rate = 5.0 }
-bullets = { pool_size = 256 }
-time = { floor = 0.5 }
-camera = { position = [0, 4, 9], look_at = [0, 1, 0], fov_deg = 50 }
-video = { width = 96, height = 64, fps = 24, frames = 6 }
-"""
+TINY = tiny_scene(frames=6)
 
 
 @pytest.fixture

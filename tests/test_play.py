@@ -9,16 +9,9 @@ import pytest
 from crowd_ik.game import world as game
 from crowd_ik.commands.cli import main
 from crowd_ik.io.video import read_frames, read_video
+from tiny_scenes import tiny_scene
 
-TINY = """
-seed = 3
-characters = { count = 6, spacing = 1.5 }
-shooters = { count = 2, fire_rate = 5.0 }
-bullets = { pool_size = 256 }
-time = { floor = 0.5 }
-camera = { position = [0, 4, 9], look_at = [0, 1, 0], fov_deg = 50 }
-video = { width = 96, height = 64, fps = 24, frames = 12 }
-"""
+TINY = tiny_scene(frames=12)
 
 
 @pytest.fixture

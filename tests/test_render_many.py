@@ -17,16 +17,9 @@ from crowd_ik.batch import jobs as batch_jobs
 from crowd_ik.batch import runner
 from crowd_ik.commands.cli import main
 from crowd_ik.io.video import read_frames
+from tiny_scenes import tiny_scene
 
-TINY = """
-seed = 3
-characters = { count = 6, spacing = 1.5 }
-shooters = { count = 2, fire_rate = 5.0 }
-bullets = { pool_size = 256 }
-time = { floor = 0.5 }
-camera = { position = [0, 4, 9], look_at = [0, 1, 0], fov_deg = 50 }
-video = { fps = 24, frames = 8 }
-"""
+TINY = tiny_scene(frames=8, size=None)
 OVERRIDES = """
 labels = true
 [overrides]
