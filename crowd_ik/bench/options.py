@@ -27,9 +27,10 @@ GAME_SCENE = "stress_10k"  # the shipped scene timed as the game plays it
 GAME_SCENE_WARMUP = 180  # world steps before timing it: the shooters' first bullets reach the crowd after ~2.5 s
 
 FULL = dict(chars=DEFAULT_CHARS, solvers=SOLVERS, rigs=RIGS, repeats=3, budget=10.0, game_chars=10000, game_frames=60,
-            scene_steps=120)
+            scene_steps=120, render_frames=90)
 QUICK = dict(chars=(100, 1000), solvers=(FABRIK, DLS), rigs=("chain16",), repeats=1, budget=1.0, game_chars=256,
-             game_frames=5, scene_steps=0)
+             game_frames=5, scene_steps=0, render_frames=0)
+MAX_RENDER_FRAMES = 100_000
 
 
 # ------------------------------------------------------------------------------------------------ options
@@ -51,6 +52,7 @@ class Options:
     quick: bool
     scene_steps: int = 0
     peers: tuple[str, ...] = ()
+    render_frames: int = 0  # frames per scene of the render workload (crowd_ik.bench.render); 0 skips it
 
 
 def _split(value: str, flag: str) -> list[str]:
@@ -120,9 +122,12 @@ def resolve_options(args) -> Options:
         from crowd_ik.bench import peers as bench_peers
         if not bench_peers.available():
             raise ValueError("--peers: numba is not installed (pip install -e '.[peers]')")
+    render_frames = base["render_frames"] if getattr(args, "render_frames", None) is None else args.render_frames
+    if isinstance(render_frames, bool) or not isinstance(render_frames, int) or not 0 <= render_frames <= MAX_RENDER_FRAMES:
+        raise ValueError(f"--render-frames: expected an integer in [0, {MAX_RENDER_FRAMES}] (got {render_frames!r})")
     return Options(chars, args.chars is not None, solvers, rigs, arches, threads, repeats, float(budget),
                    int(game_chars), base["game_frames"], bool(args.quick), base["scene_steps"] if game_chars else 0,
-                   peers)
+                   peers, int(render_frames))
 
 
 def _bytes_estimate(rig_name: str) -> int:

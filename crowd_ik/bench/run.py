@@ -30,6 +30,8 @@ targets move every frame there: the worst case. The full run also times the game
 (``game_scene``): the shipped stress_10k scene (10,000 humanoids, 16 shooters) in crowd_ik.game.world.World,
 FABRIK capped at 4 iterations, per 60 Hz world step the characters' IK and the bullets' step, after
 the first bullets have reached the crowd; there only the threatened characters move.
+The full run also renders the three shipped game scenes to H.264 through play's pipeline
+(crowd_ik.bench.render; ``--render-frames N`` a scene, 0 skips it): frames per second, warm.
 
 Exit codes (as crowd_ik.commands.cli): 2 for bad options, an existing output without --force, an unreadable
 --compare file, and for ``--arch cuda`` on a machine without a CUDA GPU (refused before anything
@@ -101,7 +103,7 @@ def child_main(spec_path: str, result_path: str) -> int:
     import taichi as ti
 
     cells = [tuple(c) for c in spec["cells"]]
-    total = len(cells) + (1 if spec["game_chars"] else 0)
+    total = len(cells) + (1 if spec["game_chars"] else 0) + (1 if spec.get("render_frames") else 0)
     records, compile_info = [], {}
     with tqdm(total=total, desc=f"bench {arch}", unit="cell", file=sys.stderr, dynamic_ncols=True) as bar:
         for rig_name, solver, n in cells:
@@ -123,6 +125,13 @@ def child_main(spec_path: str, result_path: str) -> int:
                 bar.set_postfix_str(f"game scene {GAME_SCENE}")
                 game["scene"] = game_scene(spec["scene_steps"])
             bar.update(1)
+        render = []
+        if spec.get("render_frames"):
+            from crowd_ik.bench.render import render_workload
+
+            bar.set_postfix_str(f"render {spec['render_frames']} frames a scene")
+            render = [dict(arch=arch, **r) for r in render_workload(spec["render_frames"])]
+            bar.update(1)
     from crowd_ik.solvers import settings
 
     result = dict(arch=arch, requested=spec["arch"], lanes=settings.lanes(),
@@ -130,7 +139,7 @@ def child_main(spec_path: str, result_path: str) -> int:
                   gpu=_gpu_name() if arch == "cuda" else None,
                   peak_rss_bytes=int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024,
                   loadavg_start=load_start, loadavg_end=list(os.getloadavg()),
-                  compile=compile_info, records=records, game=game)
+                  compile=compile_info, records=records, game=game, render=render)
     Path(result_path).write_text(json.dumps(result))
     return 0
 
@@ -141,7 +150,7 @@ def run_child(arch: str, cells: list, opts: Options) -> dict:
         spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
         spec.write_text(json.dumps(dict(arch=arch, threads=opts.threads, cells=cells, repeats=opts.repeats,
                                         game_chars=opts.game_chars, game_frames=opts.game_frames,
-                                        scene_steps=opts.scene_steps)))
+                                        scene_steps=opts.scene_steps, render_frames=opts.render_frames)))
         proc = subprocess.run([sys.executable, "-m", "crowd_ik.bench.run", "--child", str(spec), str(result)])
         if proc.returncode == 130 or proc.returncode == -2:
             raise KeyboardInterrupt
@@ -194,8 +203,12 @@ def run(args) -> int:
         print("bench numba: timing the peers on the chain16 workloads", file=sys.stderr)
         bench_peers.measure(records, make_workload, opts.repeats, opts.threads)
         peer_targets = bench_peers.targets(records, _isa())
-    result = dict(meta=build_meta(opts, children, arches, load_before), records=records, game=games,
-                  targets=evaluate_targets(records, games) + peer_targets)
+    from crowd_ik.bench import render as bench_render
+
+    renders = [r for c in children for r in c.get("render") or []]
+    render_targets = [t for c in children for t in bench_render.render_targets(c.get("render") or [], c["arch"])]
+    result = dict(meta=build_meta(opts, children, arches, load_before), records=records, game=games, render=renders,
+                  targets=evaluate_targets(records, games) + peer_targets + render_targets)
     missing = [s for s in opts.solvers if _reference_solver(s) is None]
     if missing:
         result["meta"]["notes"].append(f"no NumPy twin for {', '.join(missing)}: no baseline or speed-up for it")
@@ -211,11 +224,14 @@ def run(args) -> int:
                   f"on {info['n']} characters -> compile {info['compile_s']:.2f} s")
     for g in games:
         print(format_game(g))
+    for c in children:
+        for line in bench_render.format_render(c.get("render") or [], c["arch"]):
+            print(line)
     text = format_targets(result["targets"])
     if text:
         print(text)
     if old is not None:
-        print("\n".join(compare_lines(old, result, args.compare)))
+        print("\n".join(compare_lines(old, result, args.compare) + bench_render.compare_render(old, result)))
     if json_path is not None:
         write_json(json_path, result, force=args.force)
     if plot_path is not None:

@@ -92,6 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--force", action="store_true", help="overwrite existing outputs")
     play.add_argument("--hud-timings", action="store_true",
                       help="show measured milliseconds in the HUD (frames then differ run to run)")
+    play.add_argument("--serial", action="store_true",
+                      help="draw, paint and encode one frame after another on one thread (no writer thread; same frames)")
     _add_common_runtime(play)
     play.set_defaults(handler="crowd_ik.commands.play:run")
 
@@ -129,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="humanoids in the warm-start game workload, 0 to skip it (default 10000; --quick 256)")
     bench.add_argument("--peers", default=None, metavar="numba",
                        help="also time compiled peers on chain16 FABRIK/DLS (numba: pip install -e '.[peers]')")
+    bench.add_argument("--render-frames", type=int, default=None, metavar="N",
+                       help="frames per scene of the render workload: arena, crowd_1k, stress_10k to H.264, "
+                            "frames/s (default 90; --quick 0 = skipped)")
     bench.add_argument("--quick", action="store_true", help="small defaults for a smoke test (explicit flags win)")
     bench.add_argument("--force", action="store_true", help="overwrite existing outputs")
     bench.set_defaults(handler="crowd_ik.bench.run:run")

@@ -3,8 +3,10 @@ on stderr and a one-screen summary on stdout.
 
 Order of work: check the arguments and that every output may be written (no clobbering without
 --force) before anything is simulated; start Taichi once; build the World; then step and render
-frame by frame into the sink. Ctrl-C finalises the frames written so far as a shorter, playable
-video (the sink's context manager; a --clip keeps those frames too) and the CLI exits with 130.
+frame by frame into the sink through crowd_ik.io.pipeline (a writer thread paints trails and HUD
+and feeds the encoder while the next frame is simulated; --serial does one stage after another, the
+same frames). Ctrl-C finalises the frames handed over so far as a shorter, playable video (a --clip
+keeps those frames too) and the CLI exits with 130.
 
 --live plays in a window (crowd_ik.commands.live; --record F.csv saves the inputs); --inputs F.csv replays
 such a recording headless, one video frame per row, with the recorded fps, size, seed and solver
@@ -135,6 +137,7 @@ def run(args) -> int:
         from crowd_ik.io.labels import LabelsWriter
 
         labels = LabelsWriter(args.labels, force=args.force)
+    pipeline = None
     try:
         if args.still is not None:
             with labels, _progress(args.still + 1, f"{scene.name} still") as bar:
@@ -150,25 +153,25 @@ def run(args) -> int:
                 write_png(out, frame, force=args.force)
             rendered = 1
         else:
-            n = scene.n_frames
-            rendered = 0
-            with open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force) as sink, \
-                    labels, _progress(n, scene.name) as bar:
-                for k in steps:
-                    if clip is not None:
-                        clip.add(world)
-                    sink.write(world.render())
-                    if args.labels is not None:
-                        labels.add(world, k)
-                    rendered += 1
-                    bar.update()
+            from crowd_ik.io.pipeline import render_video
+
+            def after(k):
+                if args.labels is not None:
+                    labels.add(world, k)
+                bar.update()
+
+            with labels, _progress(scene.n_frames, scene.name) as bar:
+                sink = open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force)
+                pipeline = render_video(world, steps, sink, serial=getattr(args, "serial", False),
+                                        before=(lambda k: clip.add(world)) if clip is not None else None, after=after)
+            rendered = pipeline["frames"]
     except KeyboardInterrupt:
         if clip is not None and clip.count:
             clip.save(args.clip, force=args.force)  # the frames simulated so far, like the video
         raise
     if clip is not None:
         clip.save(args.clip, force=args.force)
-    info = summary(world, scene, out, time.perf_counter() - t_start, arch, rendered)
+    info = summary(world, scene, out, time.perf_counter() - t_start, arch, rendered, pipeline)
     if log is not None:
         info["inputs"] = str(args.inputs)
         info["player_shots"] = world.player.shots

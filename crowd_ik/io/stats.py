@@ -11,12 +11,13 @@ from crowd_ik import runtime
 from crowd_ik.scene import Scene
 
 
-def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: int) -> dict:
-    """The run's numbers (what --stats writes)."""
+def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: int, pipeline: dict | None = None) -> dict:
+    """The run's numbers (what --stats writes); `pipeline`: io.pipeline.render_video's numbers (the
+    video's stages and CPU use), kept under "pipeline"."""
     totals = world.totals
     frames = max(totals["frames"], 1)
     s = world.stats
-    return {
+    info = {
         "scene": scene.name,
         "output": str(out),
         "frames": rendered,
@@ -40,6 +41,9 @@ def summary(world, scene: Scene, out: str, wall_s: float, arch: str, rendered: i
         "threads": runtime.current().get("threads"),
         "seed": scene.seed,
     }
+    if pipeline is not None:
+        info["pipeline"] = pipeline
+    return info
 
 
 def format_summary(info: dict) -> str:
@@ -57,7 +61,19 @@ def format_summary(info: dict) -> str:
         f"({info['solver']}), render {info['mean_render_ms']:.1f} ms",
         f"  world time  {info['world_time_s']:.2f} s in {info['world_steps']} steps",
         f"  wall time   {info['wall_s']:.1f} s on {info['arch']}",
+        *_pipeline_lines(info.get("pipeline")),
     ])
+
+
+def _pipeline_lines(p: dict | None) -> list[str]:
+    """The video's stages (ms per frame) and CPU use, when render_video's numbers are there."""
+    if not p:
+        return []
+    st = p["stages_ms"]
+    return [f"  video       {p['fps']:.1f} frames/s ({p['mode']}), CPU {p['cpu_percent']:.0f} % "
+            f"(encoder {p['encoder_cpu_s']:.1f} s of {p['cpu_s'] + p['encoder_cpu_s']:.1f} s)",
+            f"  stages      simulate {st['simulate']:.1f}, draw {st['draw']:.1f}, overlay {st['overlay']:.1f}, "
+            f"write {st['write']:.1f}, wait {st['wait']:.1f} ms a frame"]
 
 
 __all__ = ["summary", "format_summary"]

@@ -68,9 +68,13 @@ _FRAME_NAME = "frame_{:05d}.png"
 _FRAME_RE = re.compile(r"frame_(\d{5,})\.png")
 
 # ffmpeg output options per codec; inputs are always raw bgr24 frames on stdin.
+# H.264: x264's superfast preset at CRF 21 (was veryfast, CRF 20): on 90 arena frames at 1280x720 it
+# took 35 % less encoder CPU (15 vs 23 ms a frame, bgr24 -> yuv420p included) for a decoded quality
+# at least as good (SSIM 0.980 vs 0.979, PSNR 36.5 vs 36.1 dB against the raw frames), the file 37 %
+# larger; x264 picks its thread count from the cores.
 _FFMPEG_CODECS = {
     "h264": ("libx264", ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart",
-                         "-preset", "veryfast", "-crf", "20", "-f", "mp4"]),
+                         "-preset", "superfast", "-crf", "21", "-f", "mp4"]),
     "vp8": ("libvpx", ["-c:v", "libvpx", "-pix_fmt", "yuv420p", "-deadline", "good", "-cpu-used", "4",
                        "-crf", "10", "-b:v", "8M", "-f", "webm"]),
 }

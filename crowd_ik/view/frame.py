@@ -18,6 +18,14 @@ BULLET_DRAW_RADIUS = 0.05  # m: bullets are drawn at least this big
 TRAIL_LENGTH = 2.0  # m
 
 
+def _lerp(prev: np.ndarray, now: np.ndarray, rows: np.ndarray, total: int, alpha) -> np.ndarray:
+    """prev + (now - prev) * alpha of the given rows; when every row is given the arrays are used as
+    they are (the same values as the gathered rows: no three copies of 10,000 skeletons)."""
+    if len(rows) == total:
+        return prev + (now - prev) * alpha
+    return prev[rows] + (now[rows] - prev[rows]) * alpha
+
+
 def primitives(world, alpha: float) -> dict:
     """capsules: a, b (M, 3) metres, radius (M,), color (M, 3) BGR 0..1, body (M,) int32 owner ids
     (characters 0..N-1, shooters N..N+S-1, the player N+S, shards N+S+1); spheres: centre (K, 3),
@@ -28,9 +36,8 @@ def primitives(world, alpha: float) -> dict:
     alpha = np.float32(alpha)
     alive = np.flatnonzero(chars.alive)
     up = np.flatnonzero(shooters.alive)
-    now, prev = chars.limbs.joints, chars.limbs.joints_prev
-    J = prev[alive] + (now[alive] - prev[alive]) * alpha
-    SJ = shooters.joints_prev[up] + (shooters.joints[up] - shooters.joints_prev[up]) * alpha
+    J = _lerp(chars.limbs.joints_prev, chars.limbs.joints, alive, N, alpha)
+    SJ = _lerp(shooters.joints_prev, shooters.joints, up, S, alpha)
     parts_a = [J[:, b.bone_parent].reshape(-1, 3), SJ[:, hb.bone_parent].reshape(-1, 3)]
     parts_b = [J[:, 1:].reshape(-1, 3), SJ[:, 1:].reshape(-1, 3)]
     parts_r = [np.tile(b.bone_radius, len(alive)), np.tile(hb.bone_radius, len(up))]
@@ -55,12 +62,12 @@ def primitives(world, alpha: float) -> dict:
         for parts, value in zip((parts_a, parts_b, parts_r, parts_c), shards):
             parts.append(value)
         parts_o.append(np.full(len(shards[0]), N + S + 1))
-    caps = {
-        "a": np.concatenate(parts_a).astype(np.float32),
-        "b": np.concatenate(parts_b).astype(np.float32),
-        "radius": np.concatenate(parts_r).astype(np.float32),
-        "color": np.concatenate(parts_c).astype(np.float32),
-        "body": np.concatenate(parts_o).astype(np.int32),
+    caps = {  # concatenate makes the new arrays; astype only converts what is not already its type
+        "a": np.concatenate(parts_a).astype(np.float32, copy=False),
+        "b": np.concatenate(parts_b).astype(np.float32, copy=False),
+        "radius": np.concatenate(parts_r).astype(np.float32, copy=False),
+        "color": np.concatenate(parts_c).astype(np.float32, copy=False),
+        "body": np.concatenate(parts_o).astype(np.int32, copy=False),
     }
     live = np.flatnonzero(bullets.alive)
     pos = bullets.pos_prev[live] + (bullets.pos[live] - bullets.pos_prev[live]) * alpha

@@ -17,6 +17,13 @@ afterwards with OpenCV.
 Spheres are capsules with both ends at the centre, stored after the capsules: primitive id
 M + k is sphere k. `Renderer.timings` holds the last frame's milliseconds (raster: validation,
 upload, kernels, copy out; overlay: trails and HUD).
+
+For the video pipeline (crowd_ik.io.pipeline) the Renderer can hand its work on: with
+`frame_source` set, each frame is copied into a buffer it supplies (a recycled slot, not a new
+array), and with `defer_overlay` the trails and HUD are not drawn but left in `overlay` (an
+Overlay: the trails' pixels and depth test are worked out here, from this frame's depth buffer; its
+`paint(frame)` draws them later, on another thread, with the same operations as draw_trails and
+draw_hud, so the frame is the same bit for bit).
 """
 
 from __future__ import annotations
@@ -234,6 +241,9 @@ class Renderer:
         self._depth = np.zeros((h, w), np.float32)  # what each pixel shows: view depth, inf = sky
         self._count = 0
         self.timings = {"raster_ms": 0.0, "overlay_ms": 0.0}
+        self.frame_source = None  # callable -> (H, W, 3) uint8 buffer the next frame goes into; None: a new array
+        self.defer_overlay = False  # True: render() leaves trails and HUD to self.overlay.paint(frame)
+        self.overlay = None  # the last frame's Overlay when defer_overlay is set
 
     @property
     def camera(self) -> Camera:
@@ -293,12 +303,16 @@ class Renderer:
         self._host_a[:m], self._host_b[:m], self._host_r[:m], self._host_c[:m] = a, b, r, c
         self._host_a[m:n], self._host_b[m:n], self._host_r[m:n], self._host_c[m:n] = s, s, sr, sc
         self._count = n
+        if hud_lines is not None and (isinstance(hud_lines, str) or not all(isinstance(x, str) for x in hud_lines)):
+            raise ValueError(f"render: hud_lines: expected a list of str (got {hud_lines!r:.80})")
         frame = self._raster(n)
         t_mid = time.perf_counter()
-        if trails is not None:
-            draw_trails(frame, self._camera, trails, self._depth)
-        if hud_lines:
-            draw_hud(frame, hud_lines)
+        overlay = Overlay(plan_trails(frame.shape, self._camera, trails, self._depth) if trails is not None else None,
+                          list(hud_lines) if hud_lines else None)
+        if self.defer_overlay:
+            self.overlay = overlay
+        else:
+            overlay.paint(frame)
         t_end = time.perf_counter()
         self.timings = {"raster_ms": 1e3 * (t_mid - t_start), "overlay_ms": 1e3 * (t_end - t_mid)}
         return frame
@@ -320,7 +334,11 @@ class Renderer:
         kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow, self._tiles)
         kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
                        self._tiles, self._frame, self._depth)
-        return self._frame.copy()
+        if self.frame_source is None:
+            return self._frame.copy()
+        out = self.frame_source()  # the frame buffer persists (dirty tiles): the frame is copied out
+        np.copyto(out, self._frame)
+        return out
 
     def id_buffer(self) -> tuple[np.ndarray, np.ndarray]:
         """The last frame's z-buffer: (ids (H, W) int32, -1 where no primitive; depth (H, W)
@@ -356,30 +374,46 @@ def draw_trails(frame: np.ndarray, camera: Camera, trails, depth: np.ndarray | N
     TRAIL_PIECES pieces is dropped where the scene at its midpoint's pixel is nearer than it
     (a per-piece depth test: a trail passing behind a limb is hidden there).
     """
-    import cv2
+    paint_trails(frame, plan_trails(frame.shape, camera, trails, depth))
 
+
+class TrailPlan:
+    """Trails worked out for one frame (plan_trails): per trail its fixed-point pixel polyline
+    (T, P+1, 2) int32 (4 fractional bits), thickness (T,), which pieces pass the depth test (T, P),
+    and the pixel box (x0, y0, x1, y1) the alpha layer is composited in."""
+
+    __slots__ = ("fixed", "thick", "shown", "box")
+
+    def __init__(self, fixed, thick, shown, box):
+        self.fixed, self.thick, self.shown, self.box = fixed, thick, shown, box
+
+
+def plan_trails(shape, camera: Camera, trails, depth: np.ndarray | None = None) -> TrailPlan | None:
+    """The geometry of draw_trails for a frame of `shape` (H, W, 3): projection, clipping and the
+    depth test (which reads `depth`, so it runs before the next frame overwrites it). None when no
+    trail is in view."""
     seg = np.asarray(trails, dtype=np.float64)
     if seg.ndim != 3 or seg.shape[1:] != (2, 3):
         raise ValueError(f"render: trails: expected shape (T, 2, 3) (got {seg.shape})")
     if not np.all(np.isfinite(seg)):
         raise ValueError("render: trails: values must be finite (got NaN or inf)")
-    h, w = frame.shape[:2]
+    h, w = shape[:2]
     near = 2.0 * NEAR
     z0 = (seg[:, 0] - camera.position) @ camera.forward
     z1 = (seg[:, 1] - camera.position) @ camera.forward
     keep = (z0 > near) | (z1 > near)
     if not np.any(keep):
-        return
+        return None
     p0, p1 = _clip_near(seg[keep, 0], seg[keep, 1], z0[keep], z1[keep], near)
     steps = np.linspace(0.0, 1.0, TRAIL_PIECES + 1)
     pts = p0[:, None, :] + (p1 - p0)[:, None, :] * steps[None, :, None]  # (T, P+1, 3)
     pix, z = camera.project(pts.reshape(-1, 3))
     pix = np.clip(np.nan_to_num(pix, nan=-1e6), -1e6, 1e6).reshape(len(p0), TRAIL_PIECES + 1, 2)
-    fixed = np.round(pix * 16.0).astype(np.int32)  # 4 fractional bits (shift=4)
     lo, hi = pix.min(axis=1), pix.max(axis=1)
     visible = (hi[:, 0] >= -4) & (lo[:, 0] <= w + 4) & (hi[:, 1] >= -4) & (lo[:, 1] <= h + 4)
     if not np.any(visible):
-        return
+        return None
+    fixed = np.round(pix * 16.0).astype(np.int32)  # 4 fractional bits (shift=4)
     z = z.reshape(len(p0), TRAIL_PIECES + 1)
     thick = np.clip(np.rint(camera.pixel_scale(z[:, 0]) * TRAIL_WIDTH), 1, 3).astype(int)
     shown = np.ones((len(p0), TRAIL_PIECES), bool)
@@ -390,23 +424,53 @@ def draw_trails(frame: np.ndarray, camera: Camera, trails, depth: np.ndarray | N
         scene = np.full(mid_z.shape, np.inf)
         scene[inside] = depth[mid_pix[..., 1][inside], mid_pix[..., 0][inside]]
         shown = scene >= mid_z * 0.99 - 0.05
-    alpha = np.zeros((h, w), np.uint8)
-    for k in range(TRAIL_PIECES - 1, -1, -1):  # tail first, so brighter pieces overwrite fainter ones
-        value = int(round(255 * TRAIL_ALPHA * (1.0 - k / TRAIL_PIECES)))
-        for th in np.unique(thick[visible]):
-            sel = visible & (thick == th) & shown[:, k]
-            lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2): S two-point polylines
-            cv2.polylines(alpha, lines, False, value, int(th), cv2.LINE_AA, 4)
     box = pix[visible].reshape(-1, 2)  # pixel box of the drawn trails, plus the line half-width
     x0, y0 = np.clip(np.floor(box.min(axis=0)) - 4, 0, [w, h]).astype(int)
     x1, y1 = np.clip(np.ceil(box.max(axis=0)) + 5, 0, [w, h]).astype(int)
-    ys, xs = np.nonzero(alpha[y0:y1, x0:x1])
+    return TrailPlan(fixed[visible], thick[visible], shown[visible], (int(x0), int(y0), int(x1), int(y1)))
+
+
+def paint_trails(frame: np.ndarray, plan: TrailPlan | None) -> None:
+    """Draw planned trails into frame in place (the drawing half of draw_trails). The alpha layer
+    covers only the plan's pixel box, so a frame costs what its trails cover, not its size."""
+    import cv2
+
+    if plan is None:
+        return
+    x0, y0, x1, y1 = plan.box
+    if x1 <= x0 or y1 <= y0:
+        return
+    alpha = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    origin = np.array([x0, y0], np.int32) * 16  # the layer's (0, 0) in 4-bit fixed point
+    fixed = plan.fixed - origin
+    for k in range(TRAIL_PIECES - 1, -1, -1):  # tail first, so brighter pieces overwrite fainter ones
+        value = int(round(255 * TRAIL_ALPHA * (1.0 - k / TRAIL_PIECES)))
+        for th in np.unique(plan.thick):
+            sel = (plan.thick == th) & plan.shown[:, k]
+            lines = np.ascontiguousarray(fixed[sel][:, k : k + 2])  # (S, 2, 2): S two-point polylines
+            cv2.polylines(alpha, lines, False, value, int(th), cv2.LINE_AA, 4)
+    ys, xs = np.nonzero(alpha)
+    a = alpha[ys, xs, None].astype(np.float32) * np.float32(1.0 / 255.0)
     ys += y0
     xs += x0
-    a = alpha[ys, xs, None].astype(np.float32) * np.float32(1.0 / 255.0)
     under = frame[ys, xs].astype(np.float32)
     color = np.array(TRAIL_COLOR, np.float32)
     frame[ys, xs] = (under + (color - under) * a + 0.5).astype(np.uint8)
+
+
+class Overlay:
+    """What goes over a rasterised frame: planned trails and HUD lines; paint(frame) draws them in
+    place exactly as Renderer.render does when defer_overlay is off."""
+
+    __slots__ = ("trails", "hud_lines")
+
+    def __init__(self, trails: TrailPlan | None, hud_lines: list[str] | None):
+        self.trails, self.hud_lines = trails, hud_lines
+
+    def paint(self, frame: np.ndarray) -> None:
+        paint_trails(frame, self.trails)
+        if self.hud_lines:
+            draw_hud(frame, self.hud_lines)
 
 
 def draw_hud(frame: np.ndarray, lines) -> None:

@@ -1,0 +1,218 @@
+"""The video pipeline: simulate and rasterise on the main thread while a writer thread paints the
+overlay and feeds the encoder, so that no core waits for another stage (issue 20).
+
+Stages of a frame and where they run:
+  simulate  World.step (game logic, IK, bullets)                        main thread, Taichi + NumPy
+  draw      World.render: primitives, raster kernels, copy-out, trail plan main thread, Taichi + NumPy
+  overlay   trails and HUD painted into the frame (view.render.Overlay)  writer thread, OpenCV
+  write     the frame into the sink (a pipe into ffmpeg, VP8, PNGs)      writer thread
+  encode    x264 / libvpx                                                the encoder's own process
+Every Taichi launch stays on the main thread: Taichi's CPU runtime has one thread pool with one task
+slot, so kernels cannot be launched from two threads at once (and its kernels already use every core).
+What overlaps is the rest: OpenCV, the pipe writes and the encoder run beside the next frame's
+simulation and raster (NumPy, OpenCV and os.write release the GIL, and so does a kernel launch).
+
+Frames go through a fixed ring of `slots` preallocated buffers: the renderer copies each frame into
+a free slot (Renderer.frame_source), the writer gives it back once written; when all are in flight
+the main thread waits (back-pressure: at most `slots` frames are ever held). Frames are written in
+the order they were drawn, none is dropped, and each is the same bit for bit as the serial path's
+(the overlay is the same operations on the same pixels, only later and elsewhere).
+
+Interrupts (Ctrl-C, or SIGTERM raised as one by the CLI) reach only the main thread: the frames
+already handed over are still written, the writer is joined, and only then does the sink finalise
+the shorter video. A failure in the writer (a full disk) is raised on the main thread at its next
+hand-over, and the sink is discarded as before.
+
+:func:`render_video` runs a whole video (serially with `serial=True`, for comparison) and returns
+its per-stage times and CPU use, which `play --stats` reports.
+"""
+
+from __future__ import annotations
+
+import queue
+import resource
+import threading
+import time
+
+import numpy as np
+
+DEFAULT_SLOTS = 4  # frame buffers in flight: one being drawn, up to three waiting for or in the writer
+_POLL_S = 0.05  # how often a blocked hand-over checks whether the writer has failed
+
+
+class FrameWriter:
+    """A writer thread that paints each frame's overlay and writes it to `sink`, in order.
+
+    take() lends a free (H, W, 3) uint8 buffer of the ring; submit(frame, overlay) queues it (the
+    buffer returns to the ring once written); close() waits for the queue to empty. Times (seconds)
+    are kept in `overlay_s`, `write_s`, `cpu_s` (the writer thread's CPU) and `wait_s` (the main
+    thread waiting for a free buffer).
+    """
+
+    def __init__(self, sink, shape: tuple[int, int, int], slots: int = DEFAULT_SLOTS):
+        if isinstance(slots, bool) or not isinstance(slots, int) or slots < 2:
+            raise ValueError(f"FrameWriter: slots: expected an integer >= 2 (got {slots!r})")
+        self.sink = sink
+        self._free: queue.Queue = queue.Queue()
+        for _ in range(slots):
+            self._free.put(np.empty(shape, np.uint8))
+        self._todo: queue.Queue = queue.Queue()
+        self._error: BaseException | None = None
+        self._discard = threading.Event()  # set: drop what is still queued (a failure on either side)
+        self.frames = 0
+        self.overlay_s = self.write_s = self.cpu_s = self.wait_s = 0.0
+        self._thread = threading.Thread(target=self._run, name="crowd-ik-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        cpu0 = time.thread_time()
+        while True:
+            item = self._todo.get()
+            if item is None:
+                break
+            frame, overlay = item
+            try:
+                if self._error is None and not self._discard.is_set():
+                    t0 = time.perf_counter()
+                    if overlay is not None:
+                        overlay.paint(frame)
+                    t1 = time.perf_counter()
+                    self.sink.write(frame)
+                    self.overlay_s += t1 - t0
+                    self.write_s += time.perf_counter() - t1
+                    self.frames += 1
+            except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
+                self._error = exc
+            finally:
+                self._free.put(frame)
+        self.cpu_s = time.thread_time() - cpu0
+
+    def _check(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def take(self) -> np.ndarray:
+        """A free frame buffer (waits while every buffer is in flight); raises the writer's error."""
+        t0 = time.perf_counter()
+        try:
+            while True:
+                self._check()
+                try:
+                    return self._free.get(timeout=_POLL_S)
+                except queue.Empty:
+                    continue
+        finally:
+            self.wait_s += time.perf_counter() - t0
+
+    def submit(self, frame: np.ndarray, overlay=None) -> None:
+        """Queue a buffer from take(), to be painted with `overlay` (view.render.Overlay or None) and written."""
+        self._check()
+        self._todo.put((frame, overlay))
+
+    def close(self, drain: bool = True) -> None:
+        """Stop the writer once it has written what is queued (drain) or right away (drain=False);
+        raise the writer's error, if any, unless one is already being raised (drain=False).
+
+        A second interrupt while draining drops the frames not yet written (the sink then keeps
+        those written so far)."""
+        if not drain:
+            self._discard.set()
+        self._todo.put(None)
+        while self._thread.is_alive():
+            try:
+                self._thread.join()
+            except KeyboardInterrupt:
+                self._discard.set()  # asked twice: stop soon, but never leave the thread writing
+        if drain:
+            self._check()
+
+
+def _children_cpu() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAULT_SLOTS,
+                 before=None, after=None) -> dict:
+    """Draw every frame `steps` yields (session.frames: it steps `world` and yields k) into `sink`,
+    which is closed at the end (finalised on Ctrl-C / SIGTERM, discarded on any other error, as the
+    sink's context manager does). before(k) runs before frame k is drawn, after(k) after (main
+    thread: clip recording, labels, progress). serial=True draws, paints and writes one frame after
+    another on the main thread (the path before the pipeline; the same frames).
+
+    Returns the run's numbers: frames, wall_s, fps, mean milliseconds per frame of each stage
+    (stages_ms: simulate, draw, overlay, write, wait - the main thread waiting for the writer),
+    cpu_s (this process, all threads), encoder_cpu_s (child processes reaped meanwhile: ffmpeg),
+    writer_cpu_s, cpu_percent ((cpu_s + encoder_cpu_s) / wall_s) and the mode.
+    """
+    renderer = world.renderer
+    t_start, cpu_start, child_start = time.perf_counter(), time.process_time(), _children_cpu()
+    simulate = draw = overlay_s = write_s = 0.0
+    count = 0
+    writer = None
+    with sink:
+        if not serial:
+            writer = FrameWriter(sink, (world.scene.video.height, world.scene.video.width, 3), slots)
+            renderer.frame_source, renderer.defer_overlay = writer.take, True
+        try:
+            it = iter(steps)
+            while True:
+                t0 = time.perf_counter()
+                k = next(it, None)
+                if k is None:
+                    break
+                t1 = time.perf_counter()
+                simulate += t1 - t0
+                if before is not None:
+                    before(k)
+                t2 = time.perf_counter()
+                frame = world.render()
+                t3 = time.perf_counter()
+                draw += t3 - t2
+                if writer is None:
+                    overlay_s += 1e-3 * renderer.timings["overlay_ms"]
+                    sink.write(frame)
+                    write_s += time.perf_counter() - t3
+                else:
+                    writer.submit(frame, renderer.overlay)
+                count += 1
+                if after is not None:
+                    after(k)
+        except KeyboardInterrupt:
+            if writer is not None:
+                writer.close(drain=True)  # every frame handed over is written before the sink finalises
+            raise
+        except BaseException:
+            if writer is not None:
+                writer.close(drain=False)
+            raise
+        else:
+            if writer is not None:
+                writer.close(drain=True)
+        finally:
+            renderer.frame_source, renderer.defer_overlay, renderer.overlay = None, False, None
+    wall = time.perf_counter() - t_start
+    cpu = time.process_time() - cpu_start
+    encoder = _children_cpu() - child_start
+    n = max(count, 1)
+    wait = 0.0
+    if writer is not None:
+        overlay_s, write_s, wait = writer.overlay_s, writer.write_s, writer.wait_s
+        draw -= wait  # the renderer waited inside draw for a free buffer
+    else:
+        draw -= overlay_s  # renderer.render painted the overlay inside draw
+    return {
+        "mode": "serial" if serial else "pipelined",
+        "frames": count,
+        "wall_s": wall,
+        "fps": count / wall if wall > 0 else 0.0,
+        "stages_ms": {"simulate": 1e3 * simulate / n, "draw": 1e3 * draw / n, "overlay": 1e3 * overlay_s / n,
+                      "write": 1e3 * write_s / n, "wait": 1e3 * wait / n},
+        "cpu_s": cpu,
+        "encoder_cpu_s": encoder,
+        "writer_cpu_s": writer.cpu_s if writer is not None else 0.0,
+        "cpu_percent": 100.0 * (cpu + encoder) / wall if wall > 0 else 0.0,
+    }
+
+
+__all__ = ["DEFAULT_SLOTS", "FrameWriter", "render_video"]
