@@ -18,8 +18,9 @@ def small_scene(**overrides):
 
 
 def lone_character(**overrides):
-    """One character at the origin; time always runs at 1 and the player stands far away."""
-    return small_scene(**{"characters.count": 1, "time.floor": 1.0, "player.path": [[6.0, 6.0]], **overrides})
+    """One character standing at the origin (no wandering); time always runs at 1 and the player is far away."""
+    return small_scene(**{"characters.count": 1, "characters.walk_speed": 0.0, "time.floor": 1.0,
+                          "player.path": [[6.0, 6.0]], **overrides})
 
 
 def test_world_steps_and_renders():
@@ -48,7 +49,7 @@ def test_world_steps_and_renders():
 def test_time_scale_rises_when_the_player_walks_and_falls_when_it_stops():
     scene = small_scene(**{"player.path": [[0.0, 0.0], [1.5, 0.0]], "player.speed": 1.5,
                            "time.floor": 0.05, "time.response": 4.0}, fps=30)
-    world = World(scene, autofire=False)
+    world = World(scene, autofire=False, autopilot=False)  # the scripted walk: it ends, the player stands
     assert world.time_scale == pytest.approx(0.05)
     world_time = 0.0
     for _ in range(27):  # 0.9 s of walking
@@ -251,7 +252,7 @@ def test_a_shooters_own_bullets_never_down_a_shooter():
     world.simulate(0.5)
     assert world.shooters_down == 0 and world.shooters.alive.all() and world.stats["shards"] == 0
     # two shooters facing each other across a dodging character: their misses fly on to each other
-    ring = small_scene(**{"characters.count": 1, "shooters.count": 2, "shooters.radius": 6.0,
+    ring = small_scene(**{"characters.count": 1, "characters.walk_speed": 0.0, "shooters.count": 2, "shooters.radius": 6.0,
                           "shooters.fire_rate": 6.0, "shooters.spread_deg": 4.0, "time.floor": 1.0,
                           "player.path": [[6.0, 6.0]]})
     world = World(ring)

@@ -15,9 +15,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-GOLDEN = {  # arena re-recorded when the shooters' ring stopped depending on the camera
-    "duel": "ee92881c0fcbd822c5ac4252c23bb59c3efe673a7f32450e58eb6d2a5add5293",
-    "arena": "365589ed07b9eebf0d23d33fc37bc5627eafafee26db28997acc0891a85e05d3",
+GOLDEN = {  # both re-recorded for issue 14: the crowd walks, the autopilot player shoots, the camera follows
+    "duel": "10ed17bb6124a0e139e68f4cf619ef8aecbe90af59e3b5d5de2ae536c1fa25de",
+    "arena": "db49d5eb27ca0e518df9ff0dd3efb5802387fa0b241a90d83d9bd06e41e6a219",
 }
 
 

@@ -41,7 +41,8 @@ def test_defaults_are_arena_toml():
     assert (builtin.bullets.speed, builtin.bullets.pool_size, builtin.bullets.gravity) == (25.0, 4096, 9.81)
     assert (builtin.time.floor, builtin.time.response) == (0.05, 4.0)
     assert (builtin.solver.method, builtin.solver.iterations, builtin.solver.tolerance) == ("fabrik", 8, 0.005)
-    assert builtin.camera.position == (0, 8, 16) and builtin.camera.fov_deg == 50
+    assert builtin.camera.position == (0, 4.5, 8.5) and builtin.camera.fov_deg == 50 and builtin.camera.mode == "follow"
+    assert builtin.characters.walk_speed == 1.0
     assert (builtin.video.width, builtin.video.height, builtin.video.fps, builtin.video.frames) == (1280, 720, 30, None)
 
 

@@ -7,6 +7,12 @@ head-high bullets (for those who prefer it) and a hand guard. The dodge is low-p
 it grows, slow while it relaxes), moves the pelvis and becomes IK targets for head and hands while
 the feet stay planted (one kernel, `game_kernels.dodge_targets`), then one batched solve. A dodge
 is counted when a tracked bullet goes past the chest (or stops past it) without hitting.
+
+Characters walk (`walk`, before the solve): humanoid bystanders wander, keep apart and flee the
+bullets that threaten them (game.crowd_motion), and their feet step along (game.gait): the stance
+targets follow the walking pelvis, the dodge is added on top, and after the solve both legs are
+set analytically onto the footprints, so that planted feet do not move at all. With
+characters.walk_speed = 0 (or a chain rig) they stand where the layout put them and only dodge.
 """
 
 from __future__ import annotations
@@ -16,7 +22,9 @@ import time
 import numpy as np
 
 from crowd_ik.game import streams
-from crowd_ik.game.body import LEG_SLACK, Body
+from crowd_ik.game.body import Body
+from crowd_ik.game.crowd_motion import CrowdMotion
+from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import character_layout
 from crowd_ik.game.limbs import Limbs
 from crowd_ik.geometry.vectors import UP, normalize
@@ -24,6 +32,8 @@ from crowd_ik.geometry.vectors import UP, normalize
 THREAT_HORIZON = 0.7  # s: how far ahead bullets are predicted
 THREAT_REACH = 0.7  # m: a bullet passing this close to the chest is a threat (and, if it misses, a dodge)
 REFLEX_RANGE = (0.12, 0.65)  # s: each character starts dodging this long before the closest approach
+OBLIVIOUS = 0.25  # fraction of the walking bystanders who never see a bullet coming (no dodge, no flight): the
+# crowd is hit now and then (with characters.walk_speed = 0 everybody dodges)
 CLEAR_HALF_WIDTH = 0.42  # m: lateral distance from the bullet line that clears the shoulders
 MAX_LEAN = 0.42  # m: largest lean of the head away from a bullet line
 MAX_DUCK = 0.32  # m: deepest duck
@@ -31,6 +41,8 @@ MAX_PELVIS_SHIFT = 0.16  # m
 HEAD_LEVEL = 1.42  # m: bullets above this height are ducked under (by characters that prefer it)
 TAU_ATTACK = 0.06  # s: low-pass time constant while a dodge builds up
 TAU_RELEASE = 0.35  # s: ... and while it relaxes back to the stance
+WALK_SLACK = 0.95  # the pelvis never asks a leg for more than this fraction of its length (a walking pelvis
+# also tilts: the analytic legs then still reach their footprints)
 GREY = (0.80, 0.95)  # the characters' shades of grey
 
 
@@ -68,6 +80,8 @@ class Characters:
         self.reflex = (REFLEX_RANGE[0] + (REFLEX_RANGE[1] - REFLEX_RANGE[0])
                        * streams.rand(self.seed, streams.CHARACTER, idx, 0)).astype(np.float32)
         self.prefers_duck = streams.rand(self.seed, streams.CHARACTER, idx, 1) < 0.5
+        walking = scene.characters.walk_speed > 0.0 and b.humanoid
+        self.sees = ~walking | (streams.rand(self.seed, streams.CHARACTER, idx, 3) >= OBLIVIOUS)  # (N,) bool
         lo, hi = GREY
         grey = lo + (hi - lo) * streams.rand(self.seed, streams.CHARACTER, idx, 2)
         self.colors = np.repeat(grey[:, None], 3, axis=1).astype(np.float32)  # (N, 3) BGR
@@ -89,12 +103,48 @@ class Characters:
             b.lean.astype(np.float32), b.duck.astype(np.float32), slot,
             (b.hands if len(b.hands) else np.full(1, -1)).astype(np.int32),
             (b.hip_offset if b.humanoid else np.zeros((1, 3))).astype(np.float32),
-            int(b.humanoid), b.pelvis_share, MAX_PELVIS_SHIFT, LEG_SLACK * b.leg_length if b.humanoid else 1.0, b.scale,
+            int(b.humanoid), b.pelvis_share, MAX_PELVIS_SHIFT, WALK_SLACK * b.leg_length if b.humanoid else 1.0, b.scale,
         )
         self._planted_arg = self.planted if b.humanoid else np.zeros((N, 1, 3), np.float32)
         self._targets_buf = np.zeros((N, E, 3), np.float32)
         self._roots_buf = np.zeros((N, 3), np.float32)
         self.limbs = Limbs(b, N, self.crowd)
+        self.motion = CrowdMotion(self.ground, self.yaw, scene)
+        self.motion.enabled &= b.humanoid
+        self.gait = Gait(b, self.ground, self.yaw) if b.humanoid else None
+        names = b.rig.effector_names
+        self._hand_eff = [names.index("hand_l"), names.index("hand_r")] if b.humanoid else []
+
+    def walk(self, dt: float, obstacles: np.ndarray) -> None:
+        """Move the standing bystanders' pelvises (obstacles (K, 2): the player's and the standing shooters'
+        (x, z), kept clear of), step their feet, and set this step's stance targets, roots and chest points."""
+        if self.gait is None:
+            return
+        m, b = self.motion, self.body
+        if m.enabled:
+            m.step(dt, self.alive, obstacles)
+            self.ground = np.zeros((self.n, 3), np.float32)
+            self.ground[:, [0, 2]] = m.pos
+            self.yaw = m.yaw.astype(np.float32)
+        self.gait.step(self.ground, self.yaw, self.velocity, dt, self.alive)
+        bob, hands, head = self.gait.pose(self.yaw, m.walking_speed)
+        targets = b.rest_targets(self.ground, self.yaw)
+        targets[:, self._hand_eff] += hands
+        targets[:, 0] += head
+        feet = self.gait.targets()
+        targets[:, b.planted] = feet
+        self.rest_targets = targets
+        np.copyto(self.planted, feet)
+        self.roots = (self.ground + np.float32([0.0, b.rest_root_y, 0.0])).astype(np.float32)
+        self.roots[:, 1] += bob
+        self.ref_points = np.ascontiguousarray(b.point(b.chest, self.ground, self.yaw), np.float32)
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(N, 3) float32 m/s: the pelvises' walking velocities (y = 0)."""
+        v = np.zeros((self.n, 3), np.float32)
+        v[:, [0, 2]] = self.motion.vel
+        return v
 
     @property
     def joints(self) -> np.ndarray:
@@ -125,7 +175,7 @@ class Characters:
         tr[close] = thr.bullet[close]
         self._tracked_serial[close] = bullets.serial[thr.bullet[close]]
         # 3. the dodge each character wants now
-        react = self.alive & (thr.bullet >= 0) & (thr.time <= self.reflex)
+        react = self.alive & self.sees & (thr.bullet >= 0) & (thr.time <= self.reflex)
         lean_goal = np.zeros_like(self.lean)
         duck_goal = np.zeros_like(self.duck)
         guard_goal = np.zeros_like(self.guard)
@@ -147,6 +197,7 @@ class Characters:
             if not b.humanoid:  # a chain dodges by bending: duck for anything above its middle
                 duck = np.where(height > 0.5 * head_top, np.clip(head_top - height + 0.3, 0.0, MAX_DUCK * scale), 0.0)
             lean_goal[i] = side * (sign * lean)[:, None]
+            self.motion.flee(i, side * sign[:, None], d)
             duck_goal[i] = duck
             guard_goal[i] = np.where(head_high, 1.0, 0.0)
         mag_now = np.linalg.norm(self.lean, axis=1) + self.duck
@@ -173,6 +224,8 @@ class Characters:
         sv = self.scene.solver
         self.last_report = self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations,
                                             tolerance=sv.tolerance, weights=weights, orientations=self._orient)
+        if self.gait is not None:
+            self.gait.plant(self.crowd, self.planted, self.yaw, self.alive)
         ms = 1e3 * (time.perf_counter() - t0)
         self.limbs.update()
         return ms

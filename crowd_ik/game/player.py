@@ -14,9 +14,10 @@ import numpy as np
 
 from crowd_ik.game.aim import ballistic_direction
 from crowd_ik.game.body import Body
+from crowd_ik.game.gait import leg_joints, plant_legs
 from crowd_ik.geometry.vectors import yaw_rotate
 
-CORNER_PAUSE = 0.6  # s: the player stops at every corner of its path (time slows down)
+CORNER_PAUSE = 0.6  # s: the scripted walker stops at every corner of its path (time slows down)
 STEP_TRIGGER = 0.17  # m: a foot steps when it is this far from where it should stand
 SWING_TIME = 0.22  # s per step
 STEP_LIFT = 0.09  # m
@@ -215,6 +216,7 @@ class Player:
         self.shots = 0
         self._orient = body.orient[None].copy()
         self.joints = np.zeros((body.rig.n_joints, 3), np.float32)  # (J, 3) after the last update
+        self._legs = leg_joints(body.rig)
 
     def update(self, dt: float) -> None:
         """Walk dt seconds of real time (dt = 0: stand where the walker is) and solve the pose."""
@@ -232,6 +234,8 @@ class Player:
         iterations = sv.iterations if dt > 0.0 else max(sv.iterations, 50)
         self.crowd.solve(targets[None], method=sv.method, max_iterations=iterations, tolerance=sv.tolerance,
                          orientations=self._orient)
+        # the feet exactly on the walker's footprints (game.gait): planted feet do not slide
+        plant_legs(self.crowd, self._legs, targets[None, b.planted], np.array([yaw], np.float32), np.ones(1, np.int32))
         self.joints = self.crowd.joint_positions()[0].astype(np.float32)
 
     def steer(self, move, aim=None) -> None:

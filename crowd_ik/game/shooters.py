@@ -4,6 +4,7 @@ Each picks a standing character (a hash pick) and its head or chest, aims ballis
 low-passed aim, turns toward it and holds its right hand on the line of fire by IK; it fires when
 due, in a cone of spread, at 1 / fire_rate intervals with jitter (all from the counter hash). A
 shooter the player's bullet hits is down: it neither aims nor fires and keeps its last pose.
+A shooter turning in place steps its feet around (game.gait), planted exactly by the analytic legs.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from crowd_ik.game import streams
 from crowd_ik.game.aim import ballistic_direction, cone_sample
 from crowd_ik.game.body import Body
+from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import shooter_layout
 from crowd_ik.game.player import ARM_REACH, MUZZLE
 from crowd_ik.geometry.vectors import normalize
@@ -24,6 +26,7 @@ TAU_AIM = 0.12  # s: the aim follows a new target with this time constant
 TAU_TURN = 0.25  # s: the body turns toward the aim with this time constant
 FIRST_SHOT = (0.3, 1.0)  # first shot after this fraction of 1 / fire_rate (uniform)
 INTERVAL_JITTER = (0.8, 1.2)  # later shots every 1 / fire_rate times a factor in this range
+LEAD = 0.8  # fraction of the flight time by which the aim leads a walking target
 COLOR = (0.16, 0.14, 0.82)  # BGR: the shooters (and their shards) are red
 
 
@@ -55,6 +58,7 @@ class Shooters:
         self.target = np.zeros(S, np.int32)
         self.aim_joint = np.zeros(S, np.intp)
         self.aim = np.zeros((S, 3), np.float32)
+        self.gait = Gait(hb, self.ground, self.yaw)
 
     @property
     def down(self) -> int:
@@ -78,9 +82,12 @@ class Shooters:
         self.aim_joint[k] = np.where(head, characters.body.head, characters.body.chest)
 
     def _aim_directions(self, k: np.ndarray, muzzle: np.ndarray, characters) -> np.ndarray:
-        """Ballistic unit directions (K, 3) from muzzle (K, 3) to shooters k's aim points."""
+        """Ballistic unit directions (K, 3) from muzzle (K, 3) to shooters k's aim points, led by the target's
+        walking velocity times the flight time (LEAD of it: the shooters are good but not perfect)."""
         b = self.scene.bullets
         point = characters.joints[self.target[k], self.aim_joint[k]]
+        flight = np.linalg.norm(point - muzzle, axis=1, keepdims=True) / b.speed
+        point = point + characters.velocity[self.target[k]] * (LEAD * flight)
         return ballistic_direction(muzzle, point, b.speed, b.gravity, b.drag)
 
     def aim_and_fire(self, characters, world_time: float, dt: float, autofire: bool):
@@ -126,7 +133,10 @@ class Shooters:
         turn = (want_yaw - self.yaw + math.pi) % (2.0 * math.pi) - math.pi
         turn = np.where(up, turn, 0.0)
         self.yaw = (self.yaw + turn * (1.0 - math.exp(-dt / TAU_TURN))).astype(np.float32)
+        self.gait.step(self.ground, self.yaw, np.zeros((self.n, 3), np.float32), dt, up)
+        feet = self.gait.targets()
         targets = hb.rest_targets(self.ground, self.yaw)
+        targets[:, hb.planted] = feet
         shoulder = hb.point(hb.shoulder_r, self.ground, self.yaw)
         targets[:, 2] = shoulder + self.aim * ARM_REACH * hb.scale
         t0 = time.perf_counter()
@@ -134,6 +144,7 @@ class Shooters:
         sv = self.scene.solver
         self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
                          weights=self._weights, orientations=self._orient)
+        self.gait.plant(self.crowd, feet, self.yaw, up)
         self.joints = self.crowd.joint_positions().astype(np.float32)
         return 1e3 * (time.perf_counter() - t0)
 

@@ -12,7 +12,7 @@ import numpy as np
 from crowd_ik.geometry import rng
 
 # the first argument of the hash is seed + stream
-LAYOUT, CHARACTER, FIRE, SHARD, SIDE = ((1 << 20) * np.arange(1, 6)).tolist()
+LAYOUT, CHARACTER, FIRE, SHARD, SIDE, WANDER, AUTOPILOT = ((1 << 20) * np.arange(1, 8)).tolist()
 
 
 def rand(seed: int, stream: int, index, counter) -> np.ndarray:

@@ -3,7 +3,10 @@
 `World(scene)` owns its parts, all allocated once: `characters` (game.characters), `shooters`
 (game.shooters), `player` (game.player), `bullets` (game.bullets: the one owner of every slot and
 every hit) and `shards` (game.shards), plus the camera. `step()` advances one video frame,
-`render()` draws it.
+`render()` draws it. Without a hand on the controls (a headless render) the player is driven by the
+autopilot (game.autopilot: it walks the path, stops, aims and shoots); `set_player_input` (live
+play, recorded inputs) switches it off for good; `autopilot=False` walks the path as scripted
+(game.player.Walker). The camera (view.camera.CameraRig) follows the player or stays fixed.
 
 Time (DESIGN "Game rules"). The player walks its path in *real* (video) time, pausing at every
 corner. The time scale s follows the player's speed with a first-order response,
@@ -15,8 +18,9 @@ between the last two steps (alpha = accumulator / DT), so slow motion stays smoo
 
 One world step (`step_world`), in this order:
   1. shooters aim and fire when due;
-  2. characters turn threats into dodges;
-  3. IK for characters, then shooters (one batched solve each);
+  2. characters turn threats into dodges (and flee), then walk: wander, keep apart from everybody
+     (the player and the shooters included), step their feet (game.crowd_motion, game.gait);
+  3. IK for characters, then shooters (one batched solve each; legs planted analytically);
   4. bullets move and hit characters (hit ones shatter), then the player's bullets hit shooters;
   5. shards move.
 No Python loop runs over characters. Reproducible: the same scene, seed and frame count give the
@@ -32,6 +36,7 @@ import numpy as np
 
 from crowd_ik import runtime
 from crowd_ik.game.aim import ballistic_direction, cone_sample  # noqa: F401  (part of the module's API)
+from crowd_ik.game.autopilot import Autopilot
 from crowd_ik.game.body import Body, make_rig
 from crowd_ik.game.bullets import Bullets
 from crowd_ik.game.characters import Characters
@@ -55,14 +60,15 @@ class World:
     hud_timings=True adds the measured milliseconds to the HUD (frames then differ between runs;
     None: the module default HUD_TIMINGS). open_ended=True is a session with no set length (live
     play, replayed inputs): the HUD's frame line then counts the player's shots instead of a total.
+    autopilot=False: the player walks its path as scripted instead of being steered by the autopilot.
     """
 
     def __init__(self, scene: Scene, autofire: bool = True, hud_timings: bool | None = None,
-                 open_ended: bool = False):
+                 open_ended: bool = False, autopilot: bool = True):
         if not isinstance(scene, Scene):
             raise ValueError(f"World: scene: expected a crowd_ik.Scene (got {type(scene).__name__})")
         runtime.ensure_init()
-        from crowd_ik.view.render import Camera
+        from crowd_ik.view.camera import CameraRig
 
         self.scene = scene
         self.seed = scene.seed
@@ -73,12 +79,11 @@ class World:
         scale = scene.characters.scale
         self.body = Body(make_rig(scene.characters.rig, scale), scale)
         self.hbody = self.body if self.body.humanoid else Body(Rig.humanoid(1.75 * scale), scale)
-        cam = scene.camera
-        self.camera = Camera(cam.position, cam.look_at, cam.fov_deg, scene.video.width, scene.video.height)
         self.characters = Characters(self.body, scene)
         self.shooters = Shooters(self.hbody, scene)
         self.shooters.start(self.characters)
         self.player = Player(self.hbody, scene)
+        self.autopilot = Autopilot(scene, self.hbody) if autopilot else None
         # bullets: a pool over the arena's extent
         extent = max(float(np.abs(self.characters.roots[:, [0, 2]]).max()) + 2.0 * scene.characters.spacing,
                      float(np.abs(self.shooters.roots[:, [0, 2]]).max()) + 2.0,
@@ -102,8 +107,14 @@ class World:
         self._renderer = None  # made on the first render(): export and timing runs never draw
         self._body_names = None  # primitives()' body names, made on first use
         self._update_player(0.0)
+        self.camera_rig = CameraRig(scene.camera, scene.video.width, scene.video.height, self.player.joints[0])
 
     # ------------------------------------------------------------------ public API
+    @property
+    def camera(self):
+        """This frame's view.render.Camera (it moves with the player in camera.mode "follow")."""
+        return self.camera_rig.camera
+
     @property
     def n(self) -> int:
         return self.characters.n
@@ -181,11 +192,16 @@ class World:
         through the pool like the shooters' bullets; the player's bullets also hit the shooters
         (a shooter hit is down). Returns the pool slots spawned (0 or 1).
         """
+        if fire and aim is None:
+            raise ValueError("set_player_input: fire needs an aim point (got aim=None)")
+        self.autopilot = None  # a hand on the controls: for good
         self.player.steer(move, aim)
         if not fire:
             return np.zeros(0, np.int64)
-        if aim is None:
-            raise ValueError("set_player_input: fire needs an aim point (got aim=None)")
+        return self._player_fire()
+
+    def _player_fire(self) -> np.ndarray:
+        """One bullet from the player's right hand toward its aim point; returns the slots spawned."""
         slots = self.bullets.spawn(*self.player.shot(self.scene.bullets), player=True)
         self.player.shots += len(slots)
         return slots
@@ -196,6 +212,11 @@ class World:
         t0 = time.perf_counter()
         self._phase_ms["ik"] = 0.0
         dt_video = 1.0 / self.scene.video.fps
+        if self.autopilot is not None:
+            move, aim, fire = self.autopilot.update(dt_video, self.player, self.shooters, self.characters)
+            self.player.steer(move, aim)
+            if fire:
+                self._player_fire()
         self._update_player(dt_video)
         t = self.scene.time
         goal = t.floor + (1.0 - t.floor) * min(1.0, self.player.speed / self.scene.player.speed)
@@ -204,6 +225,7 @@ class World:
         while self._acc >= DT:
             self._acc -= DT
             self.step_world()
+        self.camera_rig.update(self.player.joints[0], self.time_scale * dt_video)
         self.frame += 1
         total = 1e3 * (time.perf_counter() - t0)
         self._phase_ms["simulation"] = total - self._phase_ms["ik"]
@@ -226,6 +248,9 @@ class World:
         if shot is not None:
             bullets.spawn(*shot)
         chars.dodge(bullets, DT)
+        obstacles = np.concatenate([self.player.position()[None, [0, 2]],
+                                    shooters.ground[shooters.alive][:, [0, 2]]]).astype(np.float64)
+        chars.walk(DT, obstacles)
         t1 = time.perf_counter()
         self._phase_ms["ik"] += chars.solve()
         t2 = time.perf_counter()
@@ -297,6 +322,7 @@ class World:
     def render(self) -> np.ndarray:
         """The current frame: (H, W, 3) uint8 BGR."""
         t0 = time.perf_counter()
+        self.renderer.camera = self.camera
         prim = self.primitives()
         caps, sph = prim["capsules"], prim["spheres"]
         frame = self.renderer.render(caps["a"], caps["b"], caps["radius"], caps["color"],

@@ -10,6 +10,8 @@ crowd), `shooters` and `player`. Keys of the .npz (F frames; n bodies, J joints,
     scene, scene_toml   the scene's name and every effective value (TOML)
     fps             video frames per second (the clip's frame rate)
     frame (F,)      video frame index;  world_time (F,) s;  time_scale (F,)
+    camera_position (F, 3), camera_look_at (F, 3) float64 metres; camera_fov_deg (F,) vertical
+                    degrees: the camera of each frame (it follows the player in camera.mode "follow")
     groups          ("characters", "shooters", "player")
     <g>_index (n,)  which bodies of the group were recorded (characters: all, or a selection)
     <g>_root (F, n, 3) float32   world position of the root joint (metres, y up)
@@ -115,7 +117,7 @@ def clip_bytes(world, frames: int, characters=None) -> int:
         n = crowd.n if group != "characters" or characters is None else len(characters)
         rig = crowd.rig
         total += n * (4 * (3 + 1 + rig.n_dof + 3 * rig.n_joints) + 1)
-    return int(frames) * total + 24 * int(frames)
+    return int(frames) * total + (24 + 56) * int(frames)
 
 
 class ClipRecorder:
@@ -144,6 +146,9 @@ class ClipRecorder:
         self.frame = np.zeros(F, np.int32)
         self.world_time = np.zeros(F, np.float64)
         self.time_scale = np.zeros(F, np.float64)
+        self.camera_position = np.zeros((F, 3), np.float64)
+        self.camera_look_at = np.zeros((F, 3), np.float64)
+        self.camera_fov_deg = np.zeros(F, np.float64)
         self.groups = {}
         for group, crowd in _group_crowds(world):
             index = np.arange(crowd.n) if group != "characters" or characters is None else characters
@@ -168,6 +173,10 @@ class ClipRecorder:
         self.frame[k] = world.frame
         self.world_time[k] = world.world_time
         self.time_scale[k] = world.time_scale
+        cam = world.camera
+        self.camera_position[k] = cam.position
+        self.camera_look_at[k] = cam.look_at
+        self.camera_fov_deg[k] = cam.fov_deg
         for group, g in self.groups.items():
             crowd, idx = g["crowd"], g["index"]
             joints = crowd.joint_positions()[idx]
@@ -192,6 +201,9 @@ class ClipRecorder:
             "frame": self.frame[:k].copy(),
             "world_time": self.world_time[:k].copy(),
             "time_scale": self.time_scale[:k].copy(),
+            "camera_position": self.camera_position[:k].copy(),
+            "camera_look_at": self.camera_look_at[:k].copy(),
+            "camera_fov_deg": self.camera_fov_deg[:k].copy(),
             "groups": np.array(GROUPS),
         }
         for group, g in self.groups.items():

@@ -190,6 +190,7 @@ def play_window(session: Session, size: tuple[int, int], title: str = WINDOW_TIT
             if not gui.running:
                 break
             px, py = _to_px(gui.get_cursor_pos(), size)
+            camera = world.camera  # the shown frame's camera (it follows the player in camera.mode "follow")
             if not paused:
                 if gui.is_pressed(ti.GUI.RMB):
                     move = walk_toward(camera, px, py, world.player.position()[[0, 2]])
