@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 
 from crowd_ik.commands import cli
+from crowd_ik.commands.scenes import describe
 from crowd_ik.scene import (
     ALL_KEYS,
     MEMORY_LIMIT,
     Scene,
-    describe,
     load_scene,
     memory_estimate,
     parse_scene,

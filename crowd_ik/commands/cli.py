@@ -187,7 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     scenes = sub.add_parser("scenes", help="list the shipped scenes, or check one and print its effective values")
     scenes.add_argument("file", nargs="?", default=None, help="scene TOML to check")
-    scenes.set_defaults(handler="crowd_ik.scene:run_cli")
+    scenes.set_defaults(handler="crowd_ik.commands.scenes:run")
     return parser
 
 
