@@ -15,8 +15,9 @@ import numpy as np
 from crowd_ik import runtime
 from crowd_ik.checks import as_array as _as_array, is_number, positive_int as _positive_int
 from crowd_ik.rig import MAX_EXTENT, Rig
-from crowd_ik.solvers import ccd, dls, fabrik
+from crowd_ik.solvers import ccd, dls, fabrik, poles as pole_hints
 from crowd_ik.solvers.bundles import SolveBuffers
+from crowd_ik.solvers.errors import rotation_error
 from crowd_ik.solvers.registry import CCD, DEFAULT as DEFAULT_METHOD, DLS, FABRIK, METHODS
 from crowd_ik.solvers.request import SolveRequest, check_request
 
@@ -42,6 +43,9 @@ class SolveReport:
     iterations: np.ndarray  # (N,) int32: updates applied
     status: np.ndarray  # (N,) int8 of Status
     method: str = DEFAULT_METHOD
+    # (N,) float32 radians from the final pose: max over effectors with an axis (orientation) target of the angle
+    # between its world axis and the target; 0 for a character with none (solvers/errors.py)
+    rotation_error: np.ndarray | None = None
 
     @property
     def converged(self) -> np.ndarray:
@@ -49,8 +53,10 @@ class SolveReport:
 
     def summary(self) -> dict:
         counts = {s.name.lower(): int(np.count_nonzero(self.status == s)) for s in Status}
+        turn = self.rotation_error if self.rotation_error is not None else np.zeros(1)
         return dict(method=self.method, n=int(self.error.size), mean_error=float(self.error.mean()),
-                    max_error=float(self.error.max()), mean_iterations=float(self.iterations.mean()), **counts)
+                    max_error=float(self.error.max()), max_rotation_error=float(turn.max()),
+                    mean_iterations=float(self.iterations.mean()), **counts)
 
 
 def grid_positions(n: int, spacing: float, dim: int) -> np.ndarray:
@@ -236,7 +242,8 @@ class Crowd:
     # ---------------------------------------------------------------- solve
     def solve(self, targets, method: str = DEFAULT_METHOD, max_iterations: int = 20, tolerance: float = 1e-3,
               weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
-              damping=None, joint_weights=None, balance_weight: float = 0.0) -> SolveReport:
+              damping=None, joint_weights=None, balance_weight: float = 0.0, poles=None,
+              rotation_tolerance: float = 1e-2) -> SolveReport:
         """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.
 
         weights (E,) or (N, E) >= 0; orientations (N, E, 3) world directions for the effectors' local
@@ -247,23 +254,37 @@ class Crowd:
         balance_weight > 0), and with it the solve also waits for |(c - s)_xz| <= tolerance (see
         crowd_ik/reference/dls.py). Balance is a DLS objective: FABRIK and CCD ignore it. The result
         stays in the crowd.
+
+        poles (N, E, dim) world points (a row of NaN: none; 3D rigs): after the solve the limb above each
+        such effector swivels about the line from its pivot to the effector so that its bend joint turns
+        toward the pole (kernels/poles.py). CONVERGED needs error <= tolerance and, with orientation targets,
+        rotation_error <= rotation_tolerance (radians); orientations accept NaN rows as zero rows (none).
         """
         req = check_request(self.rig, self.n, targets, method, max_iterations, tolerance, weights, orientations,
-                            rest_weight, velocity_weight, damping, joint_weights, balance_weight)
+                            rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles,
+                            rotation_tolerance=rotation_tolerance)
+        if req.poles is not None and self.dim == 2:
+            raise ValueError("poles: a planar (dim=2) rig bends in its plane; poles need a 3D rig")
         self.buffers.load(req)
         SOLVERS[req.method](self, req)
+        if req.poles is not None:
+            pole_hints.apply(self, req)
         return self._report(req)
 
     def _report(self, req: SolveRequest) -> SolveReport:
         b = self.buffers
         error, iters, stalled = b.error.copy(), b.iterations.copy(), b.stalled.astype(bool)
         status = np.full(self.n, Status.CONVERGED, np.int8)
-        left = np.flatnonzero(error > req.tolerance)  # the others converged (in a game step, nearly all of them)
+        turn = np.zeros(self.n, np.float32)
+        if req.orientations is not None:
+            turn = rotation_error(self.rig, self.world_rot.to_numpy(), req)
+        # the others converged (in a game step, nearly all of them)
+        left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         d = b.targets[left] - self._base[left, None, :]
         far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
         status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
                                 np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
-        return SolveReport(error=error, iterations=iters, status=status, method=req.method)
+        return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)
 
 
 SOLVERS = {FABRIK: fabrik.solve, DLS: dls.solve, CCD: ccd.solve}  # one adapter per method (crowd_ik/solvers/)

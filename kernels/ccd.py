@@ -34,6 +34,7 @@ import taichi as ti
 from crowd_ik.kernels.quat import (
     constrain_rotation, qconj, qmul, qnormalize, qrot, swing, twist_angle, vec3, vec4, wrap_angle, yaw_quat,
 )
+from crowd_ik.kernels.rotation_goals import turn_error
 
 ndarray = ti.types.ndarray
 
@@ -208,8 +209,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
               dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
-              eff_pos: ti.template(), weights: ti.template(), orient: ti.template()):
-    """One CCD sweep of character i, deepest joint first, then the orientation pass.
+              eff_pos: ti.template(), weights: ti.template(), orient: ti.template(), goals: ti.template()):
+    """One CCD sweep of character i, deepest joint first, then the orientation pass (goals 1: axis targets).
 
     world_pos holds positions relative to the character's root here (see ccd_solve); the pose stays
     FK(local_rot).
@@ -277,7 +278,7 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
     world_rot[i, 0] = qmul(q_root, local_rot[i, 0])
     fk_after(i, 0, parent, offset, local_rot, world_pos, world_rot)
     # orientation targets: swing each effector joint's local axis onto its target direction
-    for j in range(J):
+    for j in range(J if ti.static(goals & 1) else 0):
         if kind[j] > 0:
             for e in range(eff_joint.shape[0]):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
@@ -325,6 +326,8 @@ def ccd_solve(
     eff_pos: ndarray(dtype=vec3, ndim=2),
     max_iterations: ti.i32,
     tolerance: ti.f32,
+    rotation_tolerance: ti.f32,
+    goals: ti.template(),
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
@@ -336,7 +339,8 @@ def ccd_solve(
     from local_rot on entry. targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit
     directions or zero; rel_t, eff_pos (N, E, 3) scratch: targets and effectors relative to the
     roots. Outputs: error (N,) final max effector distance, iterations (N,) sweeps applied, stalled
-    (N,) 1 if it stopped improving.
+    (N,) 1 if it stopped improving. goals (compile time): 0 positions only; 1 axis targets in orient, and then
+    the sweeps go on until their angle (kernels/rotation_goals.turn_error) is <= rotation_tolerance too.
     """
     for i in range(root_pos.shape[0]):
         # work relative to the root, so a character's result does not depend on where it stands
@@ -347,21 +351,28 @@ def ccd_solve(
         for e in range(eff_joint.shape[0]):
             rel_t[i, e] = targets[i, e] - root_pos[i]
         err = relative_error(i, eff_joint, rel_t, weights, world_pos)
+        turn = 0.0
+        if ti.static(goals):
+            turn = turn_error(i, eff_joint, eff_axis, weights, orient, world_rot)
         it = 0
         flat = 0
         stop = 0
-        while it < max_iterations and err > tolerance and stop == 0:
+        while it < max_iterations and (err > tolerance or turn > rotation_tolerance) and stop == 0:
             ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                       eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos,
-                      weights, orient)
+                      weights, orient, goals)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)
+            new_turn = 0.0
+            if ti.static(goals):
+                new_turn = turn_error(i, eff_joint, eff_axis, weights, orient, world_rot)
             it += 1
-            # stalled: four sweeps in a row that improved the error by less than 0.01 %
-            if new_err > err * (1.0 - 1e-4):
+            # stalled: four sweeps in a row that improved neither error by 0.01 %
+            if new_err > err * (1.0 - 1e-4) and new_turn >= turn * (1.0 - 1e-4):
                 flat += 1
             else:
                 flat = 0
             err = new_err
+            turn = new_turn
             if flat >= 4:
                 stop = 1
         for j in range(parent.shape[0]):

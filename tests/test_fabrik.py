@@ -323,7 +323,7 @@ def test_solve_is_deterministic_bitwise():
     (dict(weights=[-1.0]), "weights"),
     (dict(weights=[0.0]), "weights"),
     (dict(rest_weight=-1.0), "rest_weight"),
-    (dict(orientations=np.full((2, 1, 3), np.nan)), "orientations"),
+    (dict(orientations=[[[np.nan, 0.0, 1.0]], [[0.0, 0.0, 1.0]]]), "orientations: row \\[0, 0\\] is partly NaN"),
     (dict(orientations=np.ones((2, 1, 3))), "no local axis"),
     (dict(max_iterations=2**31), r"max_iterations: expected an integer in \[1, 10,000\]"),  # wrapped to 0 before
     (dict(max_iterations=10_001), "max_iterations"),

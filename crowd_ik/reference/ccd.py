@@ -15,6 +15,7 @@ from crowd_ik.geometry.quat import (
     twist_angle,
     wrap_angle,
 )
+from crowd_ik.reference.rotation_goals import turn_error
 from crowd_ik.rig import Rig
 
 MULTI_ROUNDS = 4
@@ -73,13 +74,14 @@ def _rotate_about(ax: np.ndarray, angle: np.ndarray, q: np.ndarray) -> np.ndarra
 
 
 def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=None, max_iterations: int = 20,
-              tolerance: float = 1e-3):
+              tolerance: float = 1e-3, rotation_tolerance: float = 1e-2):
     """CCD of N characters of ``rig`` from local rotations ``rot`` (N, J, 4).
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world, weights (N, E) (default ones), orient
     (N, E, 3) unit directions or zero. Returns dict(rot, pos, wrot, error, iterations, stalled):
     the final local rotations (N, J, 4), FK positions (N, J, 3) and world rotations (N, J, 4),
-    error (N,) max effector distance, iterations (N,) sweeps applied, stalled (N,) bool.
+    error (N,) max effector distance, iterations (N,) sweeps applied, stalled (N,) bool. With axis targets
+    the sweeps go on until their angle is within rotation_tolerance too (kernels/rotation_goals.py).
     """
     rot = np.array(rot, np.float64)
     N, J = rot.shape[:2]
@@ -88,6 +90,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
     root_yaw = np.asarray(root_yaw, np.float64).reshape(N)
     targets = np.asarray(targets, np.float64).reshape(N, E, 3)
     weights = np.ones((N, E)) if weights is None else np.broadcast_to(np.asarray(weights, np.float64), (N, E))
+    has_orient = orient is not None and np.any(np.asarray(orient) != 0)
     orient = np.zeros((N, E, 3)) if orient is None else np.asarray(orient, np.float64).reshape(N, E, 3)
     eff_joint = np.array([e.joint for e in rig.effectors])
     eff_axis = np.array([e.axis or (0.0, 0.0, 0.0) for e in rig.effectors], np.float64)
@@ -216,12 +219,16 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                 finish(j, _normalize_q(qmul(swing(cur, want), q)), base, rot, pos, wrot, has)
         return rot, pos, wrot
 
+    def turn_of(wrot):
+        return turn_error(rig, wrot, weights, orient) if has_orient else np.zeros(N)
+
     err = error_of(pos)
+    turn = turn_of(wrot)
     iters = np.zeros(N, np.int32)
     flat = np.zeros(N, np.int32)
     stalled = np.zeros(N, bool)
     for _ in range(max_iterations):
-        running = (err > tolerance) & ~stalled
+        running = ((err > tolerance) | (turn > rotation_tolerance)) & ~stalled
         if not running.any():
             break
         new_rot, new_pos, new_wrot = sweep(rot, pos, wrot)
@@ -229,10 +236,13 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
         pos = np.where(running[:, None, None], new_pos, pos)
         wrot = np.where(running[:, None, None], new_wrot, wrot)
         new_err = error_of(pos)
+        new_turn = turn_of(wrot)
         iters += running
-        # stalled: four sweeps in a row that improved the error by less than 0.01 %
-        flat = np.where(running, np.where(new_err > err * (1.0 - 1e-4), flat + 1, 0), flat)
+        # stalled: four sweeps in a row that improved neither error by 0.01 %
+        flat = np.where(running, np.where((new_err > err * (1.0 - 1e-4)) & (new_turn >= turn * (1.0 - 1e-4)),
+                                          flat + 1, 0), flat)
         err = np.where(running, new_err, err)
+        turn = np.where(running, new_turn, turn)
         stalled |= running & (flat >= 4)
     return dict(rot=rot, pos=pos, wrot=wrot, error=err, iterations=iters, stalled=stalled)
 

@@ -21,6 +21,9 @@ class SolveBuffers:
         self.orient = np.zeros((N, E, 3), np.float32)
         self.orient_zero = True  # True while orient holds zeros
         self.weights = np.zeros((N, E), np.float32)
+        self.poles = np.zeros((N, E, 3), np.float32)  # pole points (world), pole_on (N, E) 1 where given
+        self.pole_on = np.zeros((N, E), np.int32)
+        self.poles_zero = True  # True while pole_on holds zeros
         self.error = np.zeros(N, np.float32)
         self.iterations = np.zeros(N, np.int32)
         self.stalled = np.zeros(N, np.int32)
@@ -35,6 +38,13 @@ class SolveBuffers:
         elif not self.orient_zero:
             self.orient.fill(0.0)
         self.orient_zero = req.orientations is None
+        if req.poles is not None:
+            has = ~np.isnan(req.poles[..., 0])
+            self.poles[..., :dim] = np.where(has[..., None], req.poles, 0.0)
+            np.copyto(self.pole_on, has)
+        elif not self.poles_zero:
+            self.pole_on.fill(0)
+        self.poles_zero = req.poles is None
 
 
 def limited_rig(crowd) -> tuple:

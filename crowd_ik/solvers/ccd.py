@@ -19,9 +19,11 @@ def solve(crowd, req) -> None:
     reach.from_numpy(rig.reach.astype(np.float32))
     from crowd_ik.kernels import ccd
 
+    b = crowd.buffers
+    goals = int(not b.orient_zero)  # compile time: the plain sweep stays as it was
     ccd.ccd_solve(
         *bundles.limited_rig(crowd), below, reach, *bundles.pose(crowd), *bundles.goal(crowd),
         crowd.scratch("ccd_rel_t", ti.math.vec3, (crowd.n, rig.n_effectors)),
         crowd.scratch("ccd_eff_pos", ti.math.vec3, (crowd.n, rig.n_effectors)),
-        req.max_iterations, req.tolerance, *bundles.result(crowd),
+        req.max_iterations, req.tolerance, req.rotation_tolerance, goals, *bundles.result(crowd),
     )

@@ -31,16 +31,39 @@ class SolveRequest:
     damping: float | None = None
     joint_weights: np.ndarray | None = None
     balance_weight: float = 0.0
+    poles: np.ndarray | None = None  # (N, E, dim) world points, NaN rows (no pole) kept NaN
+    rotation_tolerance: float = 1e-2
 
     @property
     def plain(self) -> bool:
         """True when no secondary term shapes the solve (only targets and weights)."""
         return (self.orientations is None and self.rest_weight == 0 and self.velocity_weight == 0
-                and self.balance_weight == 0 and self.joint_weights is None)
+                and self.balance_weight == 0 and self.joint_weights is None and self.poles is None)
+
+
+def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(array, has (N, E) bool): a per-effector input of `shape` (N, E, k) whose all-NaN rows mean "none" (they
+    come back as zeros); a partly NaN row, an inf or a value beyond `limit` is a ValueError."""
+    arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{name}: expected real numbers (got dtype {arr.dtype})")
+    try:
+        arr = np.array(np.broadcast_to(arr, shape), dtype=np.float64)
+    except ValueError:
+        raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
+    nan = np.isnan(arr)
+    none = np.all(nan, axis=-1)
+    partly = np.any(nan, axis=-1) & ~none
+    if np.any(partly):
+        n, e = np.argwhere(partly)[0]
+        raise ValueError(f"{name}: row [{n}, {e}] is partly NaN (all NaN means none; got {arr[n, e].tolist()})")
+    arr[none] = 0.0
+    return as_array(arr, name, shape, limit=limit), ~none
 
 
 def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, weights, orientations,
-                  rest_weight, velocity_weight, damping, joint_weights, balance_weight) -> SolveRequest:
+                  rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles=None,
+                  rotation_tolerance=1e-2) -> SolveRequest:
     """The checked SolveRequest for n characters of `rig`, or a ValueError naming the argument."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
@@ -60,7 +83,7 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
         raise ValueError("weights: at least one effector needs a positive weight")
     orient = None
     if orientations is not None:
-        orient = as_array(orientations, "orientations", (n, E, 3))
+        orient, _ = rows_or_nan(orientations, "orientations", (n, E, 3))  # NaN rows as zero rows: none
         norms = np.sqrt(np.einsum("nek,nek->ne", orient, orient))
         no_axis = np.nonzero(np.any(norms > 0, axis=0) & (rig.arrays["eff_has_axis"] == 0))[0]
         if no_axis.size:
@@ -80,4 +103,11 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
         raise ValueError("balance_weight: the rig has no foot effectors")
     if req.joint_weights is not None and np.any(req.joint_weights < 0):
         raise ValueError(f"joint_weights: must be >= 0 (got {float(req.joint_weights.min())})")
+    if not is_number(rotation_tolerance) or not (math.isfinite(rotation_tolerance) and rotation_tolerance > 0):
+        raise ValueError(f"rotation_tolerance: expected a positive number of radians (got {rotation_tolerance!r})")
+    req.rotation_tolerance = float(rotation_tolerance)
+    if poles is not None:
+        pole, has = rows_or_nan(poles, "poles", (n, E, dim), limit=MAX_EXTENT)
+        if np.any(has):
+            req.poles = np.where(has[..., None], pole, np.nan).astype(np.float32)
     return req

@@ -29,6 +29,12 @@ FABRIK_STALL_AFTER, FABRIK_FLAT = 4, 1e-6
 # this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
 SWING_ROUNDS = 2
 
+# ---------------------------------------------------------------------------------------------- poles
+# kernels/poles.py: a limb whose bend joint lies within POLE_MIN_BEND x its distance of the line from the pivot to
+# the effector is straight (no bend plane to turn); a swivel is undone if it makes any effector's error worse
+# than max(before, tolerance) by more than POLE_SLACK (metres, or radians for rotation targets).
+POLE_MIN_BEND, POLE_SLACK = 1e-3, 1e-6
+
 # ---------------------------------------------------------------------------------------------- DLS
 DLS_ERROR_CLAMP = 1.0  # d_max = 1.0 * mean bone length * sqrt(bones from the root), Buss & Kim 2005; the LM
 # acceptance test already rejects steps that overshoot, so a looser clamp than their 0.4 costs no stability

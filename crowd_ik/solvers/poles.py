@@ -1,0 +1,44 @@
+"""Pole hints for a Crowd: after any method's solve, kernels/poles.py swivels each limb with a pole toward it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from crowd_ik.solvers import bundles
+
+
+def pole_joints(rig) -> tuple[np.ndarray, np.ndarray]:
+    """(pole_joint (E,), pivot (E,)) int32: per effector the joint whose bend plane turns toward the pole (the
+    nearest hinge strictly above the effector joint; without one, the effector joint's parent) and the nearest
+    moving joint above that one, the pivot the limb swivels at; -1 where there is none."""
+    kind, parent = rig.arrays["kind"], rig.arrays["parent"]
+    E = rig.n_effectors
+    bend, pivot = np.full(E, -1, np.int32), np.full(E, -1, np.int32)
+    for e, eff in enumerate(rig.effectors):
+        above = [int(j) for j in rig.path_to_root(eff.joint)[1:]]  # the effector joint's ancestors, nearest first
+        hinges = [j for j in above if kind[j] == 1]
+        k = hinges[0] if hinges else (above[0] if above else -1)
+        if k < 0:
+            continue
+        p = int(parent[k])
+        while p >= 0 and kind[p] == 0:
+            p = int(parent[p])
+        bend[e], pivot[e] = k, p
+    return bend, pivot
+
+
+def apply(crowd, req) -> None:
+    from crowd_ik.kernels import poles
+
+    ra, ti, E, N = crowd.rig_arrays, crowd.ti, crowd.rig.n_effectors, crowd.n
+    bend, pivot = pole_joints(crowd.rig)
+    arrays = {}
+    for name, value in (("bend", bend), ("pivot", pivot)):
+        arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, (E,))
+        arrays[name].from_numpy(value)
+    b = crowd.buffers
+    poles.pole_swivel(
+        ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
+        ra["dof_start"], ra["eff_joint"], arrays["bend"], arrays["pivot"], *bundles.pose(crowd), b.targets,
+        b.weights, b.poles, b.pole_on, crowd.scratch("pole_e_pos", ti.f32, (N, E)), req.tolerance, b.error,
+    )
