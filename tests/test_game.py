@@ -334,3 +334,20 @@ def test_cone_sample_stays_within_the_spread():
 def test_world_refuses_a_non_scene():
     with pytest.raises(ValueError, match="scene"):
         World({"characters": 3})
+
+
+def test_the_bullets_host_flags_are_the_pools_and_spawning_never_reads_the_device(monkeypatch):
+    """game.bullets.Bullets owns every slot: its alive flags equal the device pool's after every step, and
+    spawning takes the free slots from them (the pool's alive ndarray is never read back for a spawn)."""
+    world = World(small_scene(frames=60, **{"shooters.fire_rate": 8.0}))
+    pool = world.bullets.pool
+    reads = []
+    real = pool.alive.to_numpy
+    monkeypatch.setattr(pool.alive, "to_numpy", lambda: (reads.append(1), real())[1])
+    spawned = 0
+    for _ in range(90):
+        before = int(world.bullets.alive.sum())
+        world.step_world()
+        spawned += max(0, int(world.bullets.alive.sum()) - before)
+        assert np.array_equal(world.bullets.alive, real() != 0)
+    assert spawned > 0 and world.stats["shots"] > 0 and not reads

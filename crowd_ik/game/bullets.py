@@ -52,7 +52,7 @@ class Bullets:
 
     def spawn(self, origins: np.ndarray, velocities: np.ndarray, player: bool = False) -> np.ndarray:
         """Bullets into the pool's lowest free slots; player=True marks them as the player's."""
-        slots, _dropped = self.pool.spawn(origins, velocities)
+        slots, _dropped = self.pool.spawn(origins, velocities, free=np.flatnonzero(~self.alive))
         n = len(slots)
         self.players[slots] = bool(player)
         self.serial[slots] = self._next_serial + np.arange(n)

@@ -277,17 +277,19 @@ class BulletPool:
 
     # -- phases -------------------------------------------------------------------------------
 
-    def spawn(self, origins, velocities) -> tuple[np.ndarray, int]:
+    def spawn(self, origins, velocities, free=None) -> tuple[np.ndarray, int]:
         """Start K bullets at origins (K, 3) m with velocities (K, 3) m/s in the lowest free slots.
 
         Returns (slots (K',) int32 used, in request order; dropped = K - K'): when fewer than K
-        slots are free, the first K' requests get them and the rest are dropped.
+        slots are free, the first K' requests get them and the rest are dropped. free: the free
+        slots in ascending order when the caller keeps them (game.bullets.Bullets' host flags), so
+        the pool need not read its alive flags back from the device; None reads them.
         """
         from crowd_ik.kernels import projectiles as kp
 
         origins = _points("origins", origins)
         velocities = _points("velocities", velocities, origins.shape[0])
-        free = np.flatnonzero(self.alive.to_numpy() == 0)
+        free = np.flatnonzero(self.alive.to_numpy() == 0) if free is None else np.asarray(free)
         n = min(len(free), origins.shape[0])
         slots = np.ascontiguousarray(free[:n], dtype=np.int32)
         if n:
