@@ -67,20 +67,21 @@ def _classic(scene) -> list[np.ndarray]:
     return [world.render() for _ in frames(world, scene.n_frames)]
 
 
-def _run(scene, serial, sink=None, slots=4):
+def _run(scene, serial, sink=None, slots=4, overlay_on_writer=False):
     from crowd_ik.game.world import World
     from crowd_ik.session import frames
 
     world = World(scene)
     sink = sink or ListSink()
-    stats = render_video(world, frames(world, scene.n_frames), sink, serial=serial, slots=slots)
+    stats = render_video(world, frames(world, scene.n_frames), sink, serial=serial, slots=slots,
+                         overlay_on_writer=overlay_on_writer)
     return sink, stats, world
 
 
-@pytest.mark.parametrize("slots", [2, 4])
-def test_pipelined_frames_are_the_serial_frames_bit_for_bit(scene, slots):
+@pytest.mark.parametrize("slots, on_writer", [(2, False), (4, False), (3, True)])
+def test_pipelined_frames_are_the_serial_frames_bit_for_bit(scene, slots, on_writer):
     classic = _classic(scene)
-    pipe, stats, world = _run(scene, serial=False, slots=slots)
+    pipe, stats, world = _run(scene, serial=False, slots=slots, overlay_on_writer=on_writer)
     serial, _, _ = _run(scene, serial=True)
     assert world.stats["shots"] > 0 and world.stats["bullets"] > 0  # the frames have trails to defer
     assert len(pipe.frames) == len(serial.frames) == len(classic) == scene.n_frames
@@ -162,3 +163,27 @@ def test_play_writes_the_serial_frames_at_one_and_two_threads(scene, tmp_path, t
     stats = json.loads((tmp_path / f"s{threads}.json").read_text())
     assert stats["threads"] == threads and stats["pipeline"]["mode"] == "pipelined"
     assert stats["pipeline"]["frames"] == scene.n_frames
+
+
+def test_an_interrupt_while_draining_stops_the_writer_and_is_raised():
+    import signal
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    sink = ListSink(size=(32, 16), delay=0.03)
+    writer = FrameWriter(sink, (16, 32, 3), slots=12)
+    for k in range(12):
+        buf = writer.take()
+        buf[...] = k
+        writer.submit(buf)
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.1)
+        with pytest.raises(KeyboardInterrupt):
+            writer.close()  # the end of a video: Ctrl-C while the queue drains is not swallowed
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert not writer._thread.is_alive()  # nobody writes into the sink while it is being finalised
+    assert 1 <= len(sink.frames) < 12 and [int(f[0, 0, 0]) for f in sink.frames] == list(range(len(sink.frames)))

@@ -3,9 +3,9 @@ on stderr and a one-screen summary on stdout.
 
 Order of work: check the arguments and that every output may be written (no clobbering without
 --force) before anything is simulated; start Taichi once; build the World; then step and render
-frame by frame into the sink through crowd_ik.io.pipeline (a writer thread paints trails and HUD
-and feeds the encoder while the next frame is simulated; --serial does one stage after another, the
-same frames). Ctrl-C finalises the frames handed over so far as a shorter, playable video (a --clip
+frame by frame into the sink through crowd_ik.io.pipeline (a writer thread feeds the sink, and the
+encoder its own process, while the next frame is simulated; --serial does one stage after another,
+the same frames). Ctrl-C finalises the frames handed over so far as a shorter, playable video (a --clip
 keeps those frames too) and the CLI exits with 130.
 
 --live plays in a window (crowd_ik.commands.live; --record F.csv saves the inputs); --inputs F.csv replays

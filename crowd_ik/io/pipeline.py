@@ -1,22 +1,26 @@
-"""The video pipeline: simulate and rasterise on the main thread while a writer thread paints the
-overlay and feeds the encoder, so that no core waits for another stage (issue 20).
+"""The video pipeline: simulate and draw on the main thread while a writer thread feeds the sink and the
+encoder works in its own process, so that the next frame is simulated while this one is encoded (issue 20).
 
 Stages of a frame and where they run:
-  simulate  World.step (game logic, IK, bullets)                        main thread, Taichi + NumPy
-  draw      World.render: primitives, raster kernels, copy-out, trail plan main thread, Taichi + NumPy
-  overlay   trails and HUD painted into the frame (view.render.Overlay)  writer thread, OpenCV
-  write     the frame into the sink (a pipe into ffmpeg, VP8, PNGs)      writer thread
-  encode    x264 / libvpx                                                the encoder's own process
+  simulate  World.step (game logic, IK, bullets)                          main thread, Taichi + NumPy
+  draw      World.render: primitives, raster kernels, trails and HUD, copy main thread, Taichi + NumPy
+  write     the frame into the sink (a pipe into ffmpeg, VP8, PNG encoding) writer thread
+  encode    x264 / libvpx                                                  the encoder's own process
 Every Taichi launch stays on the main thread: Taichi's CPU runtime has one thread pool with one task
 slot, so kernels cannot be launched from two threads at once (and its kernels already use every core).
-What overlaps is the rest: OpenCV, the pipe writes and the encoder run beside the next frame's
-simulation and raster (NumPy, OpenCV and os.write release the GIL, and so does a kernel launch).
+Taichi 1.7 also holds the GIL for the whole of a kernel launch (measured: a Python thread got about 5 %
+of its time while a 0.4 s kernel ran), so a second Python thread only runs while the main thread is
+in Python code or in a call that releases the GIL. The writer is therefore kept to one call per frame
+that releases the GIL for all its work (os.write into ffmpeg's pipe, cv2.imencode, VideoWriter.write)
+and is otherwise idle; painting trails and HUD there (`overlay_on_writer=True`, view.render.Overlay:
+planned from the frame's depth buffer on the main thread, painted later) costs some thirty GIL
+hand-overs a frame and measured no faster, so by default they are painted on the main thread.
 
 Frames go through a fixed ring of `slots` preallocated buffers: the renderer copies each frame into
 a free slot (Renderer.frame_source), the writer gives it back once written; when all are in flight
 the main thread waits (back-pressure: at most `slots` frames are ever held). Frames are written in
 the order they were drawn, none is dropped, and each is the same bit for bit as the serial path's
-(the overlay is the same operations on the same pixels, only later and elsewhere).
+(the same kernels and the same overlay operations on the same pixels; only where the frame waits changes).
 
 Interrupts (Ctrl-C, or SIGTERM raised as one by the CLI) reach only the main thread: the frames
 already handed over are still written, the writer is joined, and only then does the sink finalise
@@ -41,7 +45,7 @@ _POLL_S = 0.05  # how often a blocked hand-over checks whether the writer has fa
 
 
 class FrameWriter:
-    """A writer thread that paints each frame's overlay and writes it to `sink`, in order.
+    """A writer thread that writes frames to `sink` in order (painting each one's overlay first, if given).
 
     take() lends a free (H, W, 3) uint8 buffer of the ring; submit(frame, overlay) queues it (the
     buffer returns to the ring once written); close() waits for the queue to empty. Times (seconds)
@@ -113,18 +117,22 @@ class FrameWriter:
         """Stop the writer once it has written what is queued (drain) or right away (drain=False);
         raise the writer's error, if any, unless one is already being raised (drain=False).
 
-        A second interrupt while draining drops the frames not yet written (the sink then keeps
-        those written so far)."""
+        An interrupt while draining drops the frames not yet written, waits for the thread (it never
+        keeps writing into a sink being finalised) and is raised then."""
         if not drain:
             self._discard.set()
         self._todo.put(None)
+        interrupted = None
         while self._thread.is_alive():
             try:
                 self._thread.join()
-            except KeyboardInterrupt:
-                self._discard.set()  # asked twice: stop soon, but never leave the thread writing
+            except KeyboardInterrupt as exc:
+                self._discard.set()
+                interrupted = exc
         if drain:
             self._check()
+        if interrupted is not None:
+            raise interrupted
 
 
 def _children_cpu() -> float:
@@ -133,12 +141,14 @@ def _children_cpu() -> float:
 
 
 def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAULT_SLOTS,
-                 before=None, after=None) -> dict:
+                 before=None, after=None, overlay_on_writer: bool = False) -> dict:
     """Draw every frame `steps` yields (session.frames: it steps `world` and yields k) into `sink`,
     which is closed at the end (finalised on Ctrl-C / SIGTERM, discarded on any other error, as the
     sink's context manager does). before(k) runs before frame k is drawn, after(k) after (main
     thread: clip recording, labels, progress). serial=True draws, paints and writes one frame after
-    another on the main thread (the path before the pipeline; the same frames).
+    another on the main thread (the path before the pipeline; the same frames). overlay_on_writer=True
+    paints trails and HUD on the writer thread instead of the main thread (the same frames; see the
+    module docstring for why that is not the default).
 
     Returns the run's numbers: frames, wall_s, fps, mean milliseconds per frame of each stage
     (stages_ms: simulate, draw, overlay, write, wait - the main thread waiting for the writer),
@@ -153,7 +163,7 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     with sink:
         if not serial:
             writer = FrameWriter(sink, (world.scene.video.height, world.scene.video.width, 3), slots)
-            renderer.frame_source, renderer.defer_overlay = writer.take, True
+            renderer.frame_source, renderer.defer_overlay = writer.take, overlay_on_writer
         try:
             it = iter(steps)
             while True:
@@ -169,18 +179,22 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
                 frame = world.render()
                 t3 = time.perf_counter()
                 draw += t3 - t2
+                if writer is None or not overlay_on_writer:
+                    overlay_s += 1e-3 * renderer.timings["overlay_ms"]  # painted inside World.render
                 if writer is None:
-                    overlay_s += 1e-3 * renderer.timings["overlay_ms"]
                     sink.write(frame)
                     write_s += time.perf_counter() - t3
                 else:
-                    writer.submit(frame, renderer.overlay)
+                    writer.submit(frame, renderer.overlay if overlay_on_writer else None)
                 count += 1
                 if after is not None:
                     after(k)
         except KeyboardInterrupt:
             if writer is not None:
-                writer.close(drain=True)  # every frame handed over is written before the sink finalises
+                try:
+                    writer.close(drain=True)  # every frame handed over is written before the sink finalises
+                except KeyboardInterrupt:
+                    pass  # asked again while draining: the first interrupt stays the one reported
             raise
         except BaseException:
             if writer is not None:
@@ -197,8 +211,10 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     n = max(count, 1)
     wait = 0.0
     if writer is not None:
-        overlay_s, write_s, wait = writer.overlay_s, writer.write_s, writer.wait_s
+        write_s, wait = writer.write_s, writer.wait_s
         draw -= wait  # the renderer waited inside draw for a free buffer
+    if writer is not None and overlay_on_writer:
+        overlay_s = writer.overlay_s
     else:
         draw -= overlay_s  # renderer.render painted the overlay inside draw
     return {
