@@ -11,6 +11,8 @@ the lane vectors they are called with.
 
 import taichi as ti
 
+PI = 3.141592653589793
+
 
 @ti.func
 def cross(ax, ay, az, bx, by, bz):
@@ -86,3 +88,47 @@ def swing(ux, uy, uz, vx, vy, vz):
     return ti.select(anti, ax, qx), ti.select(anti, ay, qy), ti.select(anti, az, qz), ti.select(anti, 0.0, qw)
 
 
+
+
+@ti.func
+def any_lane(mask):
+    """Whether any lane of a comparison's mask is set (.max() of an integer vector fails to compile)."""
+    return ti.select(mask, 1.0, 0.0).max() > 0.0
+
+
+@ti.func
+def axis_angle(ax, ay, az, angle):
+    """quat.axis_angle per lane (the axis a scalar or a lane vector)."""
+    h = 0.5 * angle
+    s = ti.sin(h)
+    return ax * s, ay * s, az * s, ti.cos(h)
+
+
+@ti.func
+def wrap_angle(t):
+    """quat.wrap_angle: to (-pi, pi]."""
+    return t - 2.0 * PI * ti.floor((t + PI) / (2.0 * PI))
+
+
+@ti.func
+def twist_angle(qx, qy, qz, qw, ax, ay, az):
+    """quat.twist_angle: the angle of q's twist about a unit axis, in (-pi, pi]."""
+    return wrap_angle(2.0 * ti.atan2(dot3(qx, qy, qz, ax, ay, az), qw))
+
+
+@ti.func
+def pseudo_angle(x, y):
+    """quat.pseudo_angle per lane: atan2's order on (-pi, pi] without trigonometry."""
+    p = y / ti.max(ti.abs(x) + ti.abs(y), 1e-30)
+    return ti.select(x < 0.0, ti.select(y >= 0.0, 2.0 - p, -2.0 - p), p)
+
+
+@ti.func
+def best_angle_about(ax, ay, az, ux, uy, uz, vx, vy, vz):
+    """quat.best_angle_about: the angle about a unit axis that best turns u toward v."""
+    du = dot3(ux, uy, uz, ax, ay, az)
+    dv = dot3(vx, vy, vz, ax, ay, az)
+    px, py, pz = ux - du * ax, uy - du * ay, uz - du * az
+    rx, ry, rz = vx - dv * ax, vy - dv * ay, vz - dv * az
+    cx, cy, cz = cross(px, py, pz, rx, ry, rz)
+    return ti.atan2(dot3(ax, ay, az, cx, cy, cz), dot3(px, py, pz, rx, ry, rz))

@@ -1,11 +1,15 @@
 """FABRIK for a Crowd: which kernel solves a request, and its launch.
 
 A constraint-free rig without orientation targets runs the lane kernels (kernels/fabrik_lanes.py:
-characters as SIMD lanes, then the rotations recovered in a second pass); everything else, and
-CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py).
+characters as SIMD lanes, then the rotations recovered in a second pass). With CROWD_IK_LIMITED_LANES=1 a
+joint-limited rig whose characters all weight the same effectors, without orientation, rotation or pole
+targets, runs kernels/fabrik_limited_lanes.py (settings.limited_lanes says why it is off by default);
+everything else, and CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py).
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from crowd_ik.solvers import bundles, settings
 
@@ -13,8 +17,55 @@ from crowd_ik.solvers import bundles, settings
 def solve(crowd, req) -> None:
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
         _free(crowd, req.max_iterations, req.tolerance)
+        return
+    active = _lane_active(crowd, req)
+    if active is not None:
+        _limited(crowd, active, req.max_iterations, req.tolerance)
     else:
         _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1)
+
+
+def _lane_active(crowd, req):
+    """The joints' activity (J,) int32 when the limited lane kernel reproduces this request: CPU lanes switched on
+    (settings.limited_lanes), no orientation, rotation or pole targets, and the same effectors positively weighted for every character (a
+    game's and the bench's requests); else None."""
+    b = crowd.buffers
+    if (settings.limited_lanes() <= 1 or not b.orient_zero or req.poles is not None
+            or getattr(req, "rotations", None) is not None):
+        return None
+    on = b.weights > 0.0
+    first = on[0]
+    if not np.array_equal(on, np.broadcast_to(first, on.shape)):
+        return None
+    return _active_joints(crowd, tuple(bool(x) for x in first))
+
+
+def _active_joints(crowd, weighted: tuple) -> np.ndarray:
+    """1 for each joint at or above a positively weighted effector (kernels/fabrik.py's acc_w > 0), cached."""
+    cache = crowd.__dict__.setdefault("_fabrik_lane_active", {})
+    if weighted not in cache:
+        parent, eff_joint = crowd.rig.arrays["parent"], crowd.rig.arrays["eff_joint"]
+        active = np.zeros(len(parent), np.int32)
+        for e, on in enumerate(weighted):
+            j = int(eff_joint[e]) if on else -1
+            while j >= 0 and not active[j]:
+                active[j] = 1
+                j = int(parent[j])
+        cache[weighted] = active
+    return cache[weighted]
+
+
+def _limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -> None:
+    """FABRIK with joint limits, characters as SIMD lanes (kernels/fabrik_limited_lanes.py)."""
+    from crowd_ik.kernels import fabrik_limited_lanes, lane_plan
+
+    ra, L = crowd.rig_arrays, settings.limited_lanes()
+    fabrik_limited_lanes.limited_solver(L, lane_plan.capacity(crowd.rig.n_joints),
+                                        lane_plan.capacity(crowd.rig.n_effectors))(
+        *bundles.limited_rig(crowd)[:12], ra["bone"], active, *bundles.pose(crowd),
+        *bundles.goal(crowd, orientations=False), lane_plan.streams(crowd.n, L), max_iterations, tolerance,
+        *bundles.result(crowd),
+    )
 
 
 def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteration: int) -> None:

@@ -1,0 +1,450 @@
+"""FABRIK with joint limits (hinge, universal, ball with cone and box) with many characters per CPU thread as
+SIMD lanes: kernels/fabrik.py's fabrik_solve (recover_each_iteration 1, no orientation targets) per lane.
+
+As kernels/fabrik_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L,
+ti.f32)``; S streams, each a contiguous range of characters whose lanes refill (a lane whose character
+converged, stalled or ran out of iterations writes its result and takes the stream's next character);
+the streams' state lives in fields of compile-time shape. Each iteration is the backward and forward
+passes of fabrik_lanes, then the topological sweep of fabrik.recover_and_constrain: FK, each active joint's
+rotation recovered from the proposals (the hinge's best angle, the ball joint's swing rounds, the closed-form
+two-bone limb, the twist for a hinge child) and clamped (kernels/lane_limits.py).
+
+Which joints are active (some positively weighted effector below them) is the same for every character
+(``active``, from the host): the rig's structure decides the branches as scalars, and only what depends on a
+character's numbers is a per-lane select. A costly branch (the swivel test, an Euler rebuild, a clamp) runs
+only when some live lane takes it. Per lane the arithmetic is fabrik_solve's in the same order, except
+that normalisations multiply by one reciprocal (kernels/lane_math.py) and zero products in the Euler rebuild
+are dropped, so statuses and iteration counts match and results do not depend on a character's lane-mates.
+"""
+
+import functools
+
+import taichi as ti
+from crowd_ik.kernels import lane_limits as lim
+from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.quat import yaw_quat
+
+from crowd_ik.solvers.settings import (
+    FABRIK_FLAT as FLAT,
+)
+from crowd_ik.solvers.settings import (
+    FABRIK_STALL_AFTER as STALL_AFTER,
+)
+from crowd_ik.solvers.settings import (
+    SWING_ROUNDS,
+    TWIST_FULL_BEND,
+    TWIST_MIN_BEND,
+)
+
+ndarray = ti.types.ndarray
+vec3 = ti.math.vec3
+vec4 = ti.math.vec4
+
+
+@functools.cache
+def limited_solver(L: int, max_joints: int, max_effectors: int):
+    """The kernel for L lanes per stream and scratch of max_joints and max_effectors rows per stream: f* (world
+    positions), r* (world rotations), l* (local rotations), w*, aw (proposals and their weights), t* (targets),
+    o*, y* (root position and yaw rotation, one row per stream)."""
+    V = ti.types.vector(L, ti.f32)
+    Vi = ti.types.vector(L, ti.i32)
+    J_, E_ = (MAX_STREAMS, max_joints), (MAX_STREAMS, max_effectors)
+    fx, fy, fz, rx, ry, rz, rw, lx, ly, lz, lw, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=J_)
+                                                                  for _ in range(15))
+    tx, ty, tz, tw = (ti.Vector.field(L, ti.f32, shape=E_) for _ in range(4))
+    ox, oy, oz, yx, yy, yz, yw = (ti.Vector.field(L, ti.f32, shape=MAX_STREAMS) for _ in range(7))
+
+    @ti.func
+    def last_active(j, child_start: ti.template(), child_list: ti.template(), active: ti.template()):
+        """The last active child of j (-1 for none) and how many there are."""
+        c = -1
+        n = 0
+        for cc in range(child_start[j], child_start[j + 1]):
+            if active[child_list[cc]]:
+                c = child_list[cc]
+                n += 1
+        return c, n
+
+    @ti.func
+    def to_base(s, k, ix, iy, iz, iw, jx, jy, jz):
+        """Proposal of joint k in the frame of a joint at j whose base rotation's inverse is i."""
+        return lm.qrot(ix, iy, iz, iw, wx[s, k] - jx, wy[s, k] - jy, wz[s, k] - jz)
+
+    @ti.func
+    def swing_round(s, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, offset: ti.template(),
+                    child_list: ti.template(), active: ti.template()):
+        """fabrik.swing_round per lane."""
+        ax, ay, az, a_w = V(0.0), V(0.0), V(0.0), V(0.0)
+        for cc in range(c0, c1):
+            c = child_list[cc]
+            if active[c]:
+                wc = aw[s, c]
+                o = offset[c]
+                ux, uy, uz = lm.qrot(qx, qy, qz, qw, o.x, o.y, o.z)
+                ux, uy, uz = lm.normalized(ux, uy, uz)
+                vx, vy, vz = to_base(s, c, ix, iy, iz, iw, jx, jy, jz)
+                vx, vy, vz = lm.safe_normalize(vx, vy, vz, ux, uy, uz)
+                sx, sy, sz, sw = lm.swing(ux, uy, uz, vx, vy, vz)
+                flip = ti.select(sw < 0.0, -1.0, 1.0)
+                ax, ay, az, a_w = ax + wc * (flip * sx), ay + wc * (flip * sy), az + wc * (flip * sz), \
+                    a_w + wc * (flip * sw)
+        nx, ny, nz, nw = lm.qnormalize(ax, ay, az, a_w)
+        return lm.qnormalize(*lm.qmul(nx, ny, nz, nw, qx, qy, qz, qw))
+
+    @ti.func
+    def twist_for_hinge_child(s, j, qx, qy, qz, qw, ix, iy, iz, iw, jx, jy, jz, on, kind: ti.template(),
+                              axes: ti.template(), offset: ti.template(), lo: ti.template(), hi: ti.template(),
+                              dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                              active: ti.template()):
+        """fabrik.twist_for_hinge_child per lane (on: the lanes whose result is used)."""
+        outx, outy, outz, outw = qx, qy, qz, qw
+        c, _n = last_active(j, child_start, child_list, active)
+        if c >= 0 and kind[c] == 1:
+            g, _m = last_active(c, child_start, child_list, active)
+            if g >= 0:
+                o = offset[c]
+                bx, by, bz = lm.normalized(*lm.qrot(qx, qy, qz, qw, o.x, o.y, o.z))
+                ux, uy, uz = to_base(s, c, ix, iy, iz, iw, jx, jy, jz)
+                vx, vy, vz = lm.qrot(ix, iy, iz, iw, wx[s, g] - wx[s, c], wy[s, g] - wy[s, c], wz[s, g] - wz[s, c])
+                nx, ny, nz = lm.cross(ux, uy, uz, vx, vy, vz)
+                bend = lm.norm3(nx, ny, nz) / ti.max(lm.norm3(ux, uy, uz) * lm.norm3(vx, vy, vz), 1e-12)
+                go = on & (bend > TWIST_MIN_BEND)
+                if lm.any_lane(go):
+                    nx, ny, nz = lm.normalized(nx, ny, nz)
+                    d = dof_start[c]
+                    a0 = axes[c, 0]
+                    px, py, pz = lm.qrot(qx, qy, qz, qw, a0.x, a0.y, a0.z)
+                    sign = ti.select(lm.dot3(px, py, pz, nx, ny, nz) < 0.0, -1.0, 1.0)
+                    if lo[d] >= 0.0:
+                        sign = V(1.0)
+                    elif hi[d] <= 0.0:
+                        sign = V(-1.0)
+                    nx, ny, nz = sign * nx, sign * ny, sign * nz
+                    pb = lm.dot3(px, py, pz, bx, by, bz)
+                    apx, apy, apz = px - pb * bx, py - pb * by, pz - pb * bz
+                    nb = lm.dot3(nx, ny, nz, bx, by, bz)
+                    npx, npy, npz = nx - nb * bx, ny - nb * by, nz - nb * bz
+                    go = go & (lm.norm3(apx, apy, apz) > 1e-6) & (lm.norm3(npx, npy, npz) > 1e-6)
+                    ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+                    cx, cy, cz = lm.cross(apx, apy, apz, npx, npy, npz)
+                    h = 0.5 * (ramp * ti.atan2(lm.dot3(bx, by, bz, cx, cy, cz), lm.dot3(apx, apy, apz, npx, npy, npz)))
+                    sh = ti.sin(h)
+                    tx_, ty_, tz_, tw_ = lm.qnormalize(*lm.qmul(bx * sh, by * sh, bz * sh, ti.cos(h), qx, qy, qz, qw))
+                    outx, outy = ti.select(go, tx_, qx), ti.select(go, ty_, qy)
+                    outz, outw = ti.select(go, tz_, qz), ti.select(go, tw_, qw)
+        return outx, outy, outz, outw
+
+    @ti.func
+    def two_bone_swing(s, j, qx, qy, qz, qw, ix, iy, iz, iw, jx, jy, jz, on, kind: ti.template(),
+                       axes: ti.template(), offset: ti.template(), lo: ti.template(), hi: ti.template(),
+                       lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                       child_start: ti.template(), child_list: ti.template(), active: ti.template()):
+        """fabrik.two_bone_swing per lane: (the rotation of j, the lanes where the limb was solved)."""
+        outx, outy, outz, outw = qx, qy, qz, qw
+        ok = on & (V(0.0) > 0.0)
+        c, _n = last_active(j, child_start, child_list, active)
+        if c >= 0 and kind[c] == 1:
+            g, n_g = last_active(c, child_start, child_list, active)
+            if n_g == 1:
+                og = offset[g]
+                end = g
+                bx, by, bz = V(og.x), V(og.y), V(og.z)
+                h, n_h = last_active(g, child_start, child_list, active)
+                if n_h == 1 and kind[h] == 0 and child_start[h + 1] == child_start[h]:
+                    end = h
+                    oh = offset[h]
+                    hx, hy, hz = lm.qrot(lx[s, g], ly[s, g], lz[s, g], lw[s, g], oh.x, oh.y, oh.z)
+                    bx, by, bz = og.x + hx, og.y + hy, og.z + hz
+                ax = axes[c, 0]
+                a = offset[c]
+                bd = lm.dot3(bx, by, bz, ax.x, ax.y, ax.z)
+                qpx, qpy, qpz = bx - bd * ax.x, by - bd * ax.y, bz - bd * ax.z  # b across the axis
+                A = lm.dot3(a.x, a.y, a.z, qpx, qpy, qpz)
+                B = lm.dot3(a.x, a.y, a.z, *lm.cross(ax.x, ax.y, ax.z, qpx, qpy, qpz))
+                C = lm.dot3(a.x, a.y, a.z, bd * ax.x, bd * ax.y, bd * ax.z)
+                vwx, vwy, vwz = to_base(s, end, ix, iy, iz, iw, jx, jy, jz)  # want
+                want2 = lm.dot3(vwx, vwy, vwz, vwx, vwy, vwz)
+                D = 0.5 * (want2 - a.norm_sqr() - lm.dot3(bx, by, bz, bx, by, bz))
+                R = ti.sqrt(A * A + B * B)
+                ok = on & (R > 1e-9) & (want2 > 1e-12)
+                if lm.any_lane(ok):
+                    d = dof_start[c]
+                    phi = ti.atan2(B, A)
+                    spread = ti.acos(ti.math.clamp((D - C) / R, -1.0, 1.0))
+                    now = lm.twist_angle(lx[s, c], ly[s, c], lz[s, c], lw[s, c], ax.x, ax.y, ax.z)
+                    t = V(0.0)
+                    best = V(1e30)
+                    for k in ti.static(range(2)):
+                        cand = ti.math.clamp(lm.wrap_angle(phi + (1.0 - 2.0 * k) * spread), lo[d], hi[d])
+                        score = ti.abs(C + A * ti.cos(cand) + B * ti.sin(cand) - D) * 1e3 + ti.abs(cand - now)
+                        t = ti.select(score < best, cand, t)
+                        best = ti.select(score < best, score, best)
+                    ux, uy, uz = lm.normalized(vwx, vwy, vwz)
+                    hx, hy, hz, hw = lm.axis_angle(ax.x, ax.y, ax.z, t)
+                    vx, vy, vz = lm.qrot(hx, hy, hz, hw, bx, by, bz)
+                    vx, vy, vz = a.x + vx, a.y + vy, a.z + vz
+                    px, py, pz = lm.normalized(*lm.qrot(qx, qy, qz, qw, vx, vy, vz))
+                    sx, sy, sz, sw = lm.swing(px, py, pz, ux, uy, uz)
+                    mx, my, mz, mw = lm.qnormalize(*lm.qmul(sx, sy, sz, sw, qx, qy, qz, qw))
+                    # the swivel about j -> g toward the proposed hinge, kept only if it lands g no farther off
+                    nx_, ny_, nz_ = lm.qrot(mx, my, mz, mw, a.x, a.y, a.z)
+                    dn = lm.dot3(nx_, ny_, nz_, ux, uy, uz)
+                    nx_, ny_, nz_ = nx_ - dn * ux, ny_ - dn * uy, nz_ - dn * uz
+                    px, py, pz = to_base(s, c, ix, iy, iz, iw, jx, jy, jz)  # u_want
+                    ex, ey, ez = wx[s, end] - wx[s, c], wy[s, end] - wy[s, c], wz[s, end] - wz[s, c]
+                    bend = lm.norm3(*lm.cross(px, py, pz, *lm.qrot(ix, iy, iz, iw, ex, ey, ez))) / ti.max(
+                        lm.norm3(px, py, pz) * lm.norm3(ex, ey, ez), 1e-12)
+                    dw = lm.dot3(px, py, pz, ux, uy, uz)
+                    px, py, pz = px - dw * ux, py - dw * uy, pz - dw * uz
+                    bend = ti.min(bend, lm.norm3(nx_, ny_, nz_) / a.norm())
+                    sv = ok & (bend > TWIST_MIN_BEND) & (lm.norm3(px, py, pz) > 1e-9)
+                    if lm.any_lane(sv):
+                        ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
+                        turn = ramp * lm.best_angle_about(ux, uy, uz, nx_, ny_, nz_, px, py, pz)
+                        sv = sv & (ti.abs(turn) > 1e-5)  # warm-started frames mostly need none
+                        if lm.any_lane(sv):
+                            ex, ey, ez, ew = lm.axis_angle(ux, uy, uz, turn)
+                            ex, ey, ez, ew = lm.qnormalize(*lm.qmul(ex, ey, ez, ew, mx, my, mz, mw))
+                            first = a.normalized()
+                            off0, off1 = V(0.0), V(0.0)
+                            for which in range(2):  # a loop, not two calls: each inlined copy costs compile time
+                                cx, cy, cz, cw = mx, my, mz, mw
+                                if which == 1:
+                                    cx, cy, cz, cw = ex, ey, ez, ew
+                                cx, cy, cz, cw = lim.constrain_ball(cx, cy, cz, cw, lo, hi, lim_p, dof_start[j],
+                                                                    cone[j], first, sv)
+                                gx, gy, gz = lm.qrot(cx, cy, cz, cw, vx, vy, vz)
+                                off = lm.norm3(gx - vwx, gy - vwy, gz - vwz)
+                                off0 = ti.select(which == 0, off, off0)
+                                off1 = ti.select(which == 1, off, off1)
+                            sv = sv & (off1 <= off0 + 1e-4)
+                            mx, my, mz, mw = ti.select(sv, ex, mx), ti.select(sv, ey, my), ti.select(sv, ez, mz), \
+                                ti.select(sv, ew, mw)
+                    outx, outy, outz, outw = ti.select(ok, mx, qx), ti.select(ok, my, qy), ti.select(ok, mz, qz), \
+                        ti.select(ok, mw, qw)
+                    if end != g:  # where g goes, so that the hinge recovers t and g keeps its angles
+                        vx, vy, vz = lm.qrot(hx, hy, hz, hw, og.x, og.y, og.z)
+                        vx, vy, vz = lm.qrot(mx, my, mz, mw, a.x + vx, a.y + vy, a.z + vz)
+                        vx, vy, vz = lm.qrot(-ix, -iy, -iz, iw, vx, vy, vz)
+                        wx[s, g] = ti.select(ok, jx + vx, wx[s, g])
+                        wy[s, g] = ti.select(ok, jy + vy, wy[s, g])
+                        wz[s, g] = ti.select(ok, jz + vz, wz[s, g])
+        return outx, outy, outz, outw, ok
+
+    @ti.func
+    def sweep(s, on, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
+              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+              dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+              active: ti.template()):
+        """fabrik.recover_and_constrain per lane: rotations from the proposals, clamped, then FK."""
+        for j in range(parent.shape[0]):
+            p = parent[j]
+            bx, by, bz, bqx, bqy, bqz, bqw = ox[s], oy[s], oz[s], yx[s], yy[s], yz[s], yw[s]
+            if p >= 0:
+                bx, by, bz, bqx, bqy, bqz, bqw = fx[s, p], fy[s, p], fz[s, p], rx[s, p], ry[s, p], rz[s, p], rw[s, p]
+            o = offset[j]
+            px, py, pz = lm.qrot(bqx, bqy, bqz, bqw, o.x, o.y, o.z)
+            jx, jy, jz = bx + px, by + py, bz + pz
+            fx[s, j], fy[s, j], fz[s, j] = jx, jy, jz
+            qx, qy, qz, qw = lx[s, j], ly[s, j], lz[s, j], lw[s, j]
+            k = kind[j]
+            if k > 0 and active[j]:
+                ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
+                c0, c1 = child_start[j], child_start[j + 1]
+                first_bone = vec3(0.0)
+                if k == 1:
+                    ax = axes[j, 0]
+                    s_cross, s_dot = V(0.0), V(0.0)
+                    for cc in range(c0, c1):
+                        c = child_list[cc]
+                        if active[c]:
+                            wc = aw[s, c]
+                            oc = offset[c]
+                            ux, uy, uz = lm.qrot(qx, qy, qz, qw, oc.x, oc.y, oc.z)
+                            du = lm.dot3(ux, uy, uz, ax.x, ax.y, ax.z)
+                            ux, uy, uz = ux - du * ax.x, uy - du * ax.y, uz - du * ax.z
+                            vx, vy, vz = to_base(s, c, ix, iy, iz, iw, jx, jy, jz)
+                            dv = lm.dot3(vx, vy, vz, ax.x, ax.y, ax.z)
+                            vx, vy, vz = vx - dv * ax.x, vy - dv * ax.y, vz - dv * ax.z
+                            s_cross += wc * lm.dot3(ax.x, ax.y, ax.z, *lm.cross(ux, uy, uz, vx, vy, vz))
+                            s_dot += wc * lm.dot3(ux, uy, uz, vx, vy, vz)
+                    turn = (s_cross != 0.0) | (s_dot != 0.0)
+                    h = 0.5 * ti.atan2(s_cross, s_dot)
+                    sh = ti.sin(h)
+                    hx, hy, hz, hw = lm.qnormalize(*lm.qmul(ax.x * sh, ax.y * sh, ax.z * sh, ti.cos(h), qx, qy, qz, qw))
+                    qx, qy, qz, qw = ti.select(turn, hx, qx), ti.select(turn, hy, qy), ti.select(turn, hz, qz), \
+                        ti.select(turn, hw, qw)
+                else:
+                    first, n_active = -1, 0
+                    for cc in range(c0, c1):
+                        if active[child_list[cc]]:
+                            n_active += 1
+                            if n_active == 1:
+                                first = child_list[cc]
+                    if first >= 0:
+                        first_bone = offset[first].normalized()
+                    free = on
+                    if n_active == 1 and k == 3:
+                        hx, hy, hz, hw, limb = two_bone_swing(s, j, qx, qy, qz, qw, ix, iy, iz, iw, jx, jy, jz, on,
+                                                              kind, axes, offset, lo, hi, lim_p, cone, dof_start,
+                                                              child_start, child_list, active)
+                        qx, qy, qz, qw = hx, hy, hz, hw
+                        free = on & (limb == 0)
+                    if n_active > 0 and lm.any_lane(free):
+                        rounds = 1 if n_active <= 1 else SWING_ROUNDS
+                        hx, hy, hz, hw = qx, qy, qz, qw
+                        for _ in range(rounds):
+                            hx, hy, hz, hw = swing_round(s, hx, hy, hz, hw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
+                                                         offset, child_list, active)
+                        if n_active == 1 and k == 3:
+                            hx, hy, hz, hw = twist_for_hinge_child(s, j, hx, hy, hz, hw, ix, iy, iz, iw, jx, jy, jz,
+                                                                   free, kind, axes, offset, lo, hi, dof_start,
+                                                                   child_start, child_list, active)
+                        qx, qy, qz, qw = ti.select(free, hx, qx), ti.select(free, hy, qy), ti.select(free, hz, qz), \
+                            ti.select(free, hw, qw)
+                d = dof_start[j]
+                if k == 1:
+                    qx, qy, qz, qw = lim.constrain_hinge(qx, qy, qz, qw, axes[j, 0], lo, hi, lim_p, d, on)
+                elif k == 2:
+                    qx, qy, qz, qw = lim.constrain_universal(qx, qy, qz, qw, axes[j, 0], axes[j, 1], lo, hi, d)
+                else:
+                    qx, qy, qz, qw = lim.constrain_ball(qx, qy, qz, qw, lo, hi, lim_p, d, cone[j], first_bone, on)
+                lx[s, j], ly[s, j], lz[s, j], lw[s, j] = qx, qy, qz, qw
+            rx[s, j], ry[s, j], rz[s, j], rw[s, j] = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
+
+    @ti.func
+    def lane_error(s, eff_joint: ti.template()):
+        """Max over effectors with positive weight of |effector - target|, per lane."""
+        err = V(0.0)
+        for e in range(eff_joint.shape[0]):
+            k = eff_joint[e]
+            n = lm.norm3(fx[s, k] - tx[s, e], fy[s, k] - ty[s, e], fz[s, k] - tz[s, e])
+            err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
+        return err
+
+    @ti.kernel
+    def solve(
+        parent: ndarray(dtype=ti.i32, ndim=1), offset: ndarray(dtype=vec3, ndim=1), kind: ndarray(dtype=ti.i32, ndim=1),
+        axes: ndarray(dtype=vec3, ndim=2), lo: ndarray(ndim=1), hi: ndarray(ndim=1), lim_p: ndarray(ndim=2),
+        cone: ndarray(ndim=1), dof_start: ndarray(dtype=ti.i32, ndim=1), child_start: ndarray(dtype=ti.i32, ndim=1),
+        child_list: ndarray(dtype=ti.i32, ndim=1), eff_joint: ndarray(dtype=ti.i32, ndim=1),
+        bone: ndarray(dtype=vec4, ndim=1), active: ndarray(dtype=ti.i32, ndim=1),
+        root_pos: ndarray(dtype=vec3, ndim=1), root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2),
+        world_pos: ndarray(dtype=vec3, ndim=2), world_rot: ndarray(dtype=vec4, ndim=2),
+        targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2), n_streams: ti.i32, max_iterations: ti.i32,
+        tolerance: ti.f32, error: ndarray(ndim=1), iterations: ndarray(dtype=ti.i32, ndim=1),
+        stalled: ndarray(dtype=ti.i32, ndim=1),
+    ):
+        """Solve the N = root_pos.shape[0] characters in place, as fabrik_solve(recover_each_iteration=1,
+        use_orient=0); active (J,) 1 where a positively weighted effector lies at or below the joint, the same
+        for every character."""
+        N = root_pos.shape[0]
+        J = parent.shape[0]
+        E = eff_joint.shape[0]
+        S = n_streams
+        chunk = (N + S - 1) // S
+        ti.loop_config(block_dim=1)  # streams end at different times: hand them out one at a time
+        for s in range(S):
+            nxt = s * chunk
+            end = ti.min(nxt + chunk, N)
+            cur = Vi(-1)  # each lane's character, -1 for none
+            live = V(0.0)
+            err = V(0.0)
+            it = V(0.0)
+            flat = V(0.0)
+            pending = V(1.0)  # lanes to hand their character's result out and take the next one
+            while pending.max() + live.max() > 0.0:
+                for l in range(L):
+                    if pending[l] > 0.0:
+                        i = cur[l]
+                        if i >= 0:
+                            error[i] = err[l]
+                            iterations[i] = ti.cast(it[l], ti.i32)
+                            stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
+                            for j in range(J):
+                                local_rot[i, j] = vec4(lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l])
+                                world_pos[i, j] = vec3(fx[s, j][l], fy[s, j][l], fz[s, j][l])
+                                world_rot[i, j] = vec4(rx[s, j][l], ry[s, j][l], rz[s, j][l], rw[s, j][l])
+                        cur[l] = -1
+                        live[l] = 0.0
+                        while nxt < end and cur[l] < 0:  # take the next character that needs iterations
+                            i = nxt
+                            nxt += 1
+                            e0 = 0.0
+                            for e in range(E):
+                                v = targets[i, e]
+                                w = weights[i, e]
+                                tx[s, e][l], ty[s, e][l], tz[s, e][l], tw[s, e][l] = v.x, v.y, v.z, w
+                                if w > 0.0:
+                                    e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
+                            if max_iterations > 0 and e0 > tolerance:
+                                for j in range(J):
+                                    v = world_pos[i, j]
+                                    fx[s, j][l], fy[s, j][l], fz[s, j][l] = v.x, v.y, v.z
+                                    q = local_rot[i, j]
+                                    lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l] = q.x, q.y, q.z, q.w
+                                r = root_pos[i]
+                                y = yaw_quat(root_yaw[i])
+                                ox[s][l], oy[s][l], oz[s][l] = r.x, r.y, r.z
+                                yx[s][l], yy[s][l], yz[s][l], yw[s][l] = y.x, y.y, y.z, y.w
+                                cur[l] = i
+                                live[l] = 1.0
+                                err[l] = e0
+                                it[l] = 0.0
+                                flat[l] = 0.0
+                            else:
+                                error[i] = e0
+                                iterations[i] = 0
+                                stalled[i] = 0
+                pending = V(0.0)
+                if live.max() > 0.0:
+                    going = live > 0.0
+                    # backward pass (fabrik_lanes.free_solver's): the effectors' weighted targets, then toward the root
+                    for j in range(J):
+                        wx[s, j], wy[s, j], wz[s, j], aw[s, j] = V(0.0), V(0.0), V(0.0), V(0.0)
+                    for e in range(E):
+                        k = eff_joint[e]
+                        w = tw[s, e]
+                        on = w > 0.0
+                        wx[s, k] = ti.select(on, wx[s, k] + w * tx[s, e], wx[s, k])
+                        wy[s, k] = ti.select(on, wy[s, k] + w * ty[s, e], wy[s, k])
+                        wz[s, k] = ti.select(on, wz[s, k] + w * tz[s, e], wz[s, k])
+                        aw[s, k] = ti.select(on, aw[s, k] + w, aw[s, k])
+                    for jj in range(J - 1):
+                        j = J - 1 - jj
+                        q = parent[j]
+                        b = bone[j]
+                        w = aw[s, j]
+                        on = w > 0.0
+                        inv = 1.0 / ti.select(on, w, 1.0)
+                        cx, cy, cz = wx[s, j] * inv, wy[s, j] * inv, wz[s, j] * inv
+                        wx[s, j], wy[s, j], wz[s, j] = cx, cy, cz
+                        ux, uy, uz = lm.safe_normalize(fx[s, q] - cx, fy[s, q] - cy, fz[s, q] - cz, -b.x, -b.y, -b.z)
+                        wx[s, q] = ti.select(on, wx[s, q] + w * (cx + b.w * ux), wx[s, q])
+                        wy[s, q] = ti.select(on, wy[s, q] + w * (cy + b.w * uy), wy[s, q])
+                        wz[s, q] = ti.select(on, wz[s, q] + w * (cz + b.w * uz), wz[s, q])
+                        aw[s, q] = ti.select(on, aw[s, q] + w, aw[s, q])
+                    # forward pass from the fixed root
+                    wx[s, 0], wy[s, 0], wz[s, 0] = fx[s, 0], fy[s, 0], fz[s, 0]
+                    for j in range(1, J):
+                        q = parent[j]
+                        b = bone[j]
+                        on = aw[s, j] > 0.0
+                        bx, by, bz = wx[s, q], wy[s, q], wz[s, q]
+                        ux, uy, uz = lm.safe_normalize(wx[s, j] - bx, wy[s, j] - by, wz[s, j] - bz, b.x, b.y, b.z)
+                        wx[s, j] = ti.select(on, bx + b.w * ux, wx[s, j])
+                        wy[s, j] = ti.select(on, by + b.w * uy, wy[s, j])
+                        wz[s, j] = ti.select(on, bz + b.w * uz, wz[s, j])
+                    sweep(s, going, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
+                          child_list, active)
+                    new_err = lane_error(s, eff_joint)
+                    it = it + live
+                    flat = ti.select(going, ti.select(new_err > err * (1.0 - FLAT), flat + 1.0, 0.0), flat)
+                    err = ti.select(going, new_err, err)
+                    done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
+                                    | (err <= tolerance))
+                    pending = ti.select(done, 1.0, 0.0)
+                    live = ti.select(done, 0.0, live)
+
+    return solve
