@@ -243,7 +243,7 @@ class Crowd:
     def solve(self, targets, method: str = DEFAULT_METHOD, max_iterations: int = 20, tolerance: float = 1e-3,
               weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
               damping=None, joint_weights=None, balance_weight: float = 0.0, poles=None,
-              rotation_tolerance: float = 1e-2) -> SolveReport:
+              rotation_tolerance: float = 1e-2, rotations=None, rotation_weights=None) -> SolveReport:
         """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.
 
         weights (E,) or (N, E) >= 0; orientations (N, E, 3) world directions for the effectors' local
@@ -259,10 +259,15 @@ class Crowd:
         such effector swivels about the line from its pivot to the effector so that its bend joint turns
         toward the pole (kernels/poles.py). CONVERGED needs error <= tolerance and, with orientation targets,
         rotation_error <= rotation_tolerance (radians); orientations accept NaN rows as zero rows (none).
+
+        rotations (N, E, 4) unit quaternions x y z w (a row of NaN: none; 3D rigs): rotations[n, e] is the target
+        of world_rotations()[n, eff_joint[e]], weighted by rotation_weights (E,) or (N, E) >= 0 (default ones)
+        apart from the positions; report.rotation_error counts 2 acos |<q, q_target>| for them.
         """
         req = check_request(self.rig, self.n, targets, method, max_iterations, tolerance, weights, orientations,
                             rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles,
-                            rotation_tolerance=rotation_tolerance)
+                            rotation_tolerance=rotation_tolerance, rotations=rotations,
+                            rotation_weights=rotation_weights)
         if req.poles is not None and self.dim == 2:
             raise ValueError("poles: a planar (dim=2) rig bends in its plane; poles need a 3D rig")
         self.buffers.load(req)
@@ -276,7 +281,7 @@ class Crowd:
         error, iters, stalled = b.error.copy(), b.iterations.copy(), b.stalled.astype(bool)
         status = np.full(self.n, Status.CONVERGED, np.int8)
         turn = np.zeros(self.n, np.float32)
-        if req.orientations is not None:
+        if req.orientations is not None or req.rotations is not None:
             turn = rotation_error(self.rig, self.world_rot.to_numpy(), req)
         # the others converged (in a game step, nearly all of them)
         left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))

@@ -209,16 +209,22 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
               dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(), eff_joint: ti.template(),
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
-              eff_pos: ti.template(), weights: ti.template(), orient: ti.template(), goals: ti.template()):
-    """One CCD sweep of character i, deepest joint first, then the orientation pass (goals 1: axis targets).
+              eff_pos: ti.template(), weights: ti.template(), orient: ti.template(), goals: ti.template(),
+              goal_t: ti.template(), rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template()):
+    """One CCD sweep of character i, deepest joint first, then the orientation pass (goals 1: axis targets;
+    goals 2: full rotation targets, see shift_targets and turn_to_rotations).
 
     world_pos holds positions relative to the character's root here (see ccd_solve); the pose stays
-    FK(local_rot).
+    FK(local_rot). The joints aim at goal_t: rel_t, or with goals 2 the shifted targets shift_targets writes.
     """
     J = parent.shape[0]
     q_root = yaw_quat(root_yaw[i])
     for e in range(eff_joint.shape[0]):
         eff_pos[i, e] = world_pos[i, eff_joint[e]]
+    if ti.static(goals & 2):
+        shift_targets(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                      eff_joint, below, q_root, local_rot, world_pos, world_rot, rel_t, goal_t, eff_pos, weights,
+                      rot_t, rot_w, eff_move)
     for jj in range(J):
         j = J - 1 - jj
         k = kind[j]
@@ -239,7 +245,7 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                 if weights[i, e] > 0.0 and below[j, e] != 0:
                     n_j += 1
                     single = e
-                    if (rel_t[i, e] - world_pos[i, 0]).norm() <= reach[e]:
+                    if (goal_t[i, e] - world_pos[i, 0]).norm() <= reach[e]:
                         out_of_reach = 0
                 if p >= 0 and weights[i, e] > 0.0 and below[p, e] != 0:
                     n_p += 1
@@ -259,11 +265,11 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
             elif k == 1 and p >= 0 and n_j == 1 and n_p == 1 and kind[p] == 3:
                 s = dof_start[j]
                 q = hinge_reach_step(i, q, axes[j, 0], lo[s], hi[s], inv_base, pos_j, world_pos[i, p], single,
-                                     eff_joint, rel_t, eff_pos)
+                                     eff_joint, goal_t, eff_pos)
             elif k == 1:
-                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
+                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, goal_t, weights, eff_pos)
             else:
-                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, rel_t, weights, eff_pos)
+                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, goal_t, weights, eff_pos)
             q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                                 below, weights)
             # carry the effectors below j along with its turn (world turn = base q_new q_old^-1 base^-1)
@@ -295,6 +301,106 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                     local_rot[i, j] = q
                     world_rot[i, j] = qmul(base_rot, q)
                     fk_after(i, j, parent, offset, local_rot, world_pos, world_rot)
+    if ti.static(goals & 2):
+        turn_to_rotations(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                          eff_joint, below, q_root, local_rot, world_pos, world_rot, weights, rot_t, rot_w, eff_move)
+
+
+@ti.func
+def wanted_rotation(i, e, j, base_rot, offset: ti.template(), kind: ti.template(), axes: ti.template(),
+                    lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+                    dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                    eff_joint: ti.template(), below: ti.template(), world_rot: ti.template(), weights: ti.template(),
+                    rot_t: ti.template()):
+    """Local rotation of effector e's moving joint j (parent's world rotation base_rot) that turns the effector
+    joint's world rotation onto rot_t[i, e], clamped to j's limits. Between j and the effector joint all joints
+    are fixed, so their turn L = world_rot[j]^-1 world_rot[eff_joint[e]] is a constant of the rig's pose."""
+    turn = qmul(qconj(world_rot[i, j]), world_rot[i, eff_joint[e]])
+    q = qnormalize(qmul(qconj(base_rot), qmul(rot_t[i, e], qconj(turn))))
+    return constrain_joint(i, j, q, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                           below, weights)
+
+
+@ti.func
+def shift_targets(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
+                  lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+                  dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                  eff_joint: ti.template(), below: ti.template(), q_root, local_rot: ti.template(),
+                  world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(), goal_t: ti.template(),
+                  eff_pos: ti.template(), weights: ti.template(), rot_t: ti.template(), rot_w: ti.template(),
+                  eff_move: ti.template()):
+    """Where the joints above aim (goals 2): an effector with a rotation target is reached by its moving joint m
+    (eff_move[e], the nearest joint with DOFs at or above it) standing at t - R_m v, R_m the world rotation m
+    takes for the target (clamped to its limits) and v the fixed offset from m to the effector in m's frame;
+    the joints above aim m's position at that point (a joint at m itself then has no lever for it), and
+    turn_to_rotations turns m afterwards. The others aim at rel_t as before."""
+    for e in range(eff_joint.shape[0]):
+        goal_t[i, e] = rel_t[i, e]
+        if rot_w[i, e] > 0.0:
+            m = eff_move[e, 0]
+            k = eff_joint[e]
+            if m >= 0 and m != k:
+                base_rot = q_root
+                if parent[m] >= 0:
+                    base_rot = world_rot[i, parent[m]]
+                q = wanted_rotation(i, e, m, base_rot, offset, kind, axes, lo, hi, lim_p, cone, dof_start,
+                                    child_start, child_list, eff_joint, below, world_rot, weights, rot_t)
+                v = qrot(qconj(world_rot[i, m]), world_pos[i, k] - world_pos[i, m])
+                goal_t[i, e] = rel_t[i, e] - qrot(qmul(base_rot, q), v)
+                eff_pos[i, e] = world_pos[i, m]
+
+
+@ti.func
+def turn_to_rotations(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
+                      lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+                      dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+                      eff_joint: ti.template(), below: ti.template(), q_root, local_rot: ti.template(),
+                      world_pos: ti.template(), world_rot: ti.template(), weights: ti.template(),
+                      rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template()):
+    """After the sweep (goals 2): each effector's moving joint m takes the rotation that meets its rotation target
+    (clamped to its limits), parents first; FK below it. Where m cannot turn about every axis (a universal wrist
+    or ankle) or its limits stop it, the ball joint b above it that serves only this effector (eff_move[e, 1]: a
+    shoulder, a hip) swivels about the line b -> m, which keeps m where it stands, by the twist about that line
+    of what is left (q_target q^-1), and m turns again."""
+    for j in range(parent.shape[0]):
+        for e in range(eff_joint.shape[0]):
+            if eff_move[e, 0] == j and rot_w[i, e] > 0.0:
+                for rnd in range(2):
+                    base_rot = q_root
+                    if parent[j] >= 0:
+                        base_rot = world_rot[i, parent[j]]
+                    q = wanted_rotation(i, e, j, base_rot, offset, kind, axes, lo, hi, lim_p, cone, dof_start,
+                                        child_start, child_list, eff_joint, below, world_rot, weights, rot_t)
+                    local_rot[i, j] = q
+                    world_rot[i, j] = qmul(base_rot, q)
+                    fk_after(i, j, parent, offset, local_rot, world_pos, world_rot)
+                    b = eff_move[e, 1]
+                    if rnd == 0 and b >= 0:
+                        a = world_pos[i, j] - world_pos[i, b]
+                        if a.norm_sqr() > 1e-12:
+                            a = a.normalized()
+                            left = qmul(rot_t[i, e], qconj(world_rot[i, eff_joint[e]]))
+                            ang = twist_angle(left, a)
+                            bb = q_root
+                            if parent[b] >= 0:
+                                bb = world_rot[i, parent[b]]
+                            qb = qmul(qconj(bb), turn_about(a, ang, world_rot[i, b]))
+                            qb = constrain_joint(i, b, qb, offset, kind, axes, lo, hi, lim_p, cone, dof_start,
+                                                 child_start, child_list, below, weights)
+                            local_rot[i, b] = qb
+                            world_rot[i, b] = qmul(bb, qb)
+                            fk_after(i, b, parent, offset, local_rot, world_pos, world_rot)
+
+
+@ti.func
+def rotation_error(i, eff_joint: ti.template(), rot_t: ti.template(), rot_w: ti.template(), world_rot: ti.template()):
+    """Max over effectors with a rotation target (rot_w > 0) of 2 acos |<q, q_target>|, radians."""
+    err = 0.0
+    for e in range(eff_joint.shape[0]):
+        if rot_w[i, e] > 0.0:
+            c = ti.abs(world_rot[i, eff_joint[e]].dot(rot_t[i, e]))
+            err = ti.max(err, 2.0 * ti.acos(ti.min(c, 1.0)))
+    return err
 
 
 @ti.kernel
@@ -322,7 +428,11 @@ def ccd_solve(
     targets: ndarray(dtype=vec3, ndim=2),
     weights: ndarray(ndim=2),
     orient: ndarray(dtype=vec3, ndim=2),
+    rot_t: ndarray(dtype=vec4, ndim=2),
+    rot_w: ndarray(ndim=2),
+    eff_move: ndarray(dtype=ti.i32, ndim=2),
     rel_t: ndarray(dtype=vec3, ndim=2),
+    aim_t: ndarray(dtype=vec3, ndim=2),
     eff_pos: ndarray(dtype=vec3, ndim=2),
     max_iterations: ti.i32,
     tolerance: ti.f32,
@@ -339,8 +449,12 @@ def ccd_solve(
     from local_rot on entry. targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit
     directions or zero; rel_t, eff_pos (N, E, 3) scratch: targets and effectors relative to the
     roots. Outputs: error (N,) final max effector distance, iterations (N,) sweeps applied, stalled
-    (N,) 1 if it stopped improving. goals (compile time): 0 positions only; 1 axis targets in orient, and then
-    the sweeps go on until their angle (kernels/rotation_goals.turn_error) is <= rotation_tolerance too.
+    (N,) 1 if it stopped improving. goals (compile time) bits: 1 axis targets in orient, and then
+    the sweeps go on until their angle (kernels/rotation_goals.turn_error) is <= rotation_tolerance too; 2 full
+    rotation targets rot_t (N, E, 4) where rot_w (N, E) > 0: the joints above each effector's moving joint
+    eff_move (E,) aim it at its shifted target (aim_t (N, E, 3) scratch; shift_targets), it then turns onto the
+    rotation (turn_to_rotations), and the sweeps go on until 2 acos |<q, q_target>| <= rotation_tolerance too.
+    With goals 0 none of orient, rot_t, rot_w, eff_move, aim_t is read.
     """
     for i in range(root_pos.shape[0]):
         # work relative to the root, so a character's result does not depend on where it stands
@@ -352,19 +466,28 @@ def ccd_solve(
             rel_t[i, e] = targets[i, e] - root_pos[i]
         err = relative_error(i, eff_joint, rel_t, weights, world_pos)
         turn = 0.0
-        if ti.static(goals):
+        if ti.static(goals & 1):
             turn = turn_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+        if ti.static(goals & 2):
+            turn = ti.max(turn, rotation_error(i, eff_joint, rot_t, rot_w, world_rot))
         it = 0
         flat = 0
         stop = 0
         while it < max_iterations and (err > tolerance or turn > rotation_tolerance) and stop == 0:
-            ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
-                      eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t, eff_pos,
-                      weights, orient, goals)
+            if ti.static(goals & 2):  # one call site per compile: aim at the shifted targets
+                ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                          eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t,
+                          eff_pos, weights, orient, goals, aim_t, rot_t, rot_w, eff_move)
+            else:
+                ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
+                          eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t,
+                          eff_pos, weights, orient, goals, rel_t, rot_t, rot_w, eff_move)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)
             new_turn = 0.0
-            if ti.static(goals):
+            if ti.static(goals & 1):
                 new_turn = turn_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+            if ti.static(goals & 2):
+                new_turn = ti.max(new_turn, rotation_error(i, eff_joint, rot_t, rot_w, world_rot))
             it += 1
             # stalled: four sweeps in a row that improved neither error by 0.01 %
             if new_err > err * (1.0 - 1e-4) and new_turn >= turn * (1.0 - 1e-4):

@@ -203,6 +203,8 @@ def dls_solve(
     targets: ndarray(dtype=vec3, ndim=2),
     weights: ndarray(ndim=2),
     orient: ndarray(dtype=vec3, ndim=2),
+    rot_t: ndarray(dtype=vec4, ndim=2),
+    rot_w: ndarray(ndim=2),
     rel_pos: ndarray(dtype=vec3, ndim=2),
     qwork: ndarray(dtype=vec4, ndim=3),
     work: ndarray(ndim=3),
@@ -216,6 +218,7 @@ def dls_solve(
     rest_w: ti.f32,
     vel_w: ti.f32,
     bal_w: ti.f32,
+    extra: ti.template(),
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
@@ -231,6 +234,9 @@ def dls_solve(
     m^2/rad^2; bal_w (dimensionless) weighs the squared balance error in m^2. Outputs:
     error (N,) final max effector distance, iterations (N,) accepted steps, stalled (N,) 1 if LM
     could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.solvers.dls_setup.dls_settings.
+    extra (compile time, 0 = the plain kernel): bit 1 full rotation targets rot_t (N, E, 4) x y z w of the
+    effector joints' world rotations, weighted by rot_w (N, E) (0: none), 3 rows each (R grows by 3 per
+    effector); with extra 0 rot_t and rot_w are not read.
     """
     for i in range(root_pos.shape[0]):
         read_angles(i, parent, kind, jmode, axes, dof_start, local_rot, work)
@@ -261,7 +267,7 @@ def dls_solve(
                 copy_pose(i, THETA, THETA0, -1, Q_START, parent, local_rot, work, qwork)
             new = objective(i, parent, kind, jmode, dof_start, eff_joint, eff_axis, eff_has_axis, eff_lim, root_pos,
                             local_rot, rel_pos, world_rot, targets, weights, orient, work, qwork, com_w, support_w,
-                            length, rest_w, vel_w, bal_w)
+                            length, rest_w, vel_w, bal_w, rot_t, rot_w, extra)
             need_fk = 0
             if first == 1:
                 obj = new
@@ -342,7 +348,7 @@ def dls_solve(
                     R = build_system(i, parent, kind, jmode, axes, dof_start, eff_joint, eff_axis,
                                      eff_has_axis, eff_lim, root_pos, root_yaw, local_rot, rel_pos, world_rot, targets,
                                      weights, orient, work, qwork, com_w, support_w, jac, rows, length, rest_w,
-                                     vel_w, bal_w)
+                                     vel_w, bal_w, rot_t, rot_w, extra)
                     for d in range(D):
                         work[i, FREE, d] = 1.0
                     failed = 0

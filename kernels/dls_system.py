@@ -24,8 +24,12 @@ def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(
               eff_has_axis: ti.template(), eff_lim: ti.template(), root_pos: ti.template(), local_rot: ti.template(),
               rel_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
               weights: ti.template(), orient: ti.template(), work: ti.template(), qwork: ti.template(),
-              com_w: ti.template(), support_w: ti.template(), length, rest_w, vel_w, bal_w):
+              com_w: ti.template(), support_w: ti.template(), length, rest_w, vel_w, bal_w,
+              rot_t: ti.template(), rot_w: ti.template(), extra: ti.template()):
     """(F, max position error, max(orientation error * L, balance error)) of character i's current pose.
+
+    extra (compile time) bit 1: full rotation targets rot_t (N, E, 4) weighted by rot_w (N, E), each adding
+    rot_w * (L * angle)^2 to F and L * angle to the orientation error (angle = |log(q_target q^-1)|).
 
     F counts each position term as |t - p|^2 - beyond^2, beyond = max(|t - base| - reach, 0), the part
     no pose can remove: the same minimiser and the same comparisons, but for a target out of reach it
@@ -56,6 +60,12 @@ def objective(i, parent: ti.template(), kind: ti.template(), jmode: ti.template(
                 a = qrot(world_rot[i, k], eff_axis[e])
                 ang = length * swing_vector(a, orient[i, e]).norm()
                 f += w * ang * ang
+                oerr = ti.max(oerr, ang)
+        if ti.static(extra & 1):
+            rw = rot_w[i, e]
+            if rw > 0.0:
+                ang = length * qlog(qmul(rot_t[i, e], qconj(world_rot[i, eff_joint[e]]))).norm()
+                f += rw * ang * ang
                 oerr = ti.max(oerr, ang)
     if rest_w > 0.0 or vel_w > 0.0:
         for j in range(parent.shape[0]):
@@ -113,10 +123,14 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                  root_yaw: ti.template(), local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(),
                  targets: ti.template(), weights: ti.template(), orient: ti.template(), work: ti.template(),
                  qwork: ti.template(), com_w: ti.template(), support_w: ti.template(), jac: ti.template(),
-                 rows: ti.template(), length, rest_w, vel_w, bal_w):
+                 rows: ti.template(), length, rest_w, vel_w, bal_w, rot_t: ti.template(), rot_w: ti.template(),
+                 extra: ti.template()):
     """Fill jac[i, :R], rows[i, 0, :R] (the aimed error) and work[i, G]; return R, the number of rows.
 
-    The balance rows (bal_w > 0) come last, after the effectors' rows.
+    The balance rows (bal_w > 0) come last, after the effectors' rows. extra bit 1 (compile time): an effector
+    with a full rotation target (rot_w > 0) gets 3 more rows after its position (and axis) rows:
+    sqrt(rot_w) L times the world rotation vector log(q_target q^-1) (clamped to ORI_CLAMP), whose column for
+    a DOF of world axis w is sqrt(rot_w) L w.
     """
     D = jac.shape[2]
     for r, d in ti.ndrange(jac.shape[1], D):
@@ -130,11 +144,14 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
     for e in range(E + 1):
         bal = e == E
         sw = 0.0
+        sr = 0.0
         if bal:
             sw = ti.sqrt(ti.max(bal_w, 0.0))
         else:
             sw = ti.sqrt(ti.max(weights[i, e], 0.0))
-        if sw > 0.0:
+            if ti.static(extra & 1):
+                sr = ti.sqrt(ti.max(rot_w[i, e], 0.0))
+        if sw > 0.0 or sr > 0.0:
             k = J - 1
             p_eff = vec3(0.0)
             ori = False
@@ -181,6 +198,17 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                     u2 = ti.math.cross(a, u1)
                     rows[i, 0, r + 3] = sw * length * rv.dot(u1)
                     rows[i, 0, r + 4] = sw * length * rv.dot(u2)
+                if ti.static(extra & 1):
+                    if sr > 0.0:
+                        rr = r + 3
+                        if ori:
+                            rr += 2
+                        rq = qlog(qmul(rot_t[i, e], qconj(world_rot[i, k])))
+                        ang = rq.norm()
+                        if ang > ORI_CLAMP:
+                            rq = rq * (ORI_CLAMP / ang)
+                        for c in ti.static(range(3)):
+                            rows[i, 0, rr + c] = sr * length * rq[c]
             n = k
             while n >= 0:
                 kd = kind[n]
@@ -203,6 +231,13 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                             if ori:
                                 jac[i, r + 3, s + c] = sw * length * col.dot(u1)
                                 jac[i, r + 4, s + c] = sw * length * col.dot(u2)
+                            if ti.static(extra & 1):
+                                if sr > 0.0:
+                                    rr = r + 3
+                                    if ori:
+                                        rr += 2
+                                    for cc in ti.static(range(3)):
+                                        jac[i, rr + cc, s + c] = sr * length * col[cc]
                 if bal:
                     n -= 1
                 else:
@@ -213,6 +248,9 @@ def build_system(i, parent: ti.template(), kind: ti.template(), jmode: ti.templa
                 r += 3
                 if ori:
                     r += 2
+                if ti.static(extra & 1):
+                    if sr > 0.0:
+                        r += 3
     # g = -(alpha rho + beta nu): rho, nu in the columns' coordinates (world axes for quaternion joints)
     for d in range(D):
         work[i, G, d] = 0.0

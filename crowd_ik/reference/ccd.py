@@ -74,7 +74,7 @@ def _rotate_about(ax: np.ndarray, angle: np.ndarray, q: np.ndarray) -> np.ndarra
 
 
 def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=None, max_iterations: int = 20,
-              tolerance: float = 1e-3, rotation_tolerance: float = 1e-2):
+              tolerance: float = 1e-3, rotation_tolerance: float = 1e-2, rotations=None, rotation_weights=None):
     """CCD of N characters of ``rig`` from local rotations ``rot`` (N, J, 4).
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world, weights (N, E) (default ones), orient
@@ -82,6 +82,10 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
     the final local rotations (N, J, 4), FK positions (N, J, 3) and world rotations (N, J, 4),
     error (N,) max effector distance, iterations (N,) sweeps applied, stalled (N,) bool. With axis targets
     the sweeps go on until their angle is within rotation_tolerance too (kernels/rotation_goals.py).
+    rotations (N, E, 4) x y z w full rotation targets of the effector joints' world rotations where
+    rotation_weights (N, E) > 0 (default ones; zero rows: none): as kernels/ccd.py (shift_targets,
+    turn_to_rotations), the joints above each effector's moving joint aim it at its shifted target, it turns
+    onto the rotation, a ball joint serving only that effector swivels for the twist it lacks.
     """
     rot = np.array(rot, np.float64)
     N, J = rot.shape[:2]
@@ -103,6 +107,15 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
     q_root = yaw_quat(root_yaw)
 
     pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
+    has_rot = np.zeros((N, E), bool)
+    if rotations is not None:
+        from crowd_ik.solvers.ccd import moving_joints
+
+        rot_t = np.asarray(rotations, np.float64).reshape(N, E, 4)
+        rw = np.ones((N, E)) if rotation_weights is None else np.broadcast_to(
+            np.asarray(rotation_weights, np.float64), (N, E))
+        has_rot = (rw > 0) & (np.sum(rot_t * rot_t, -1) > 0)
+        move = moving_joints(rig)
 
     def error_of(pos):
         d = np.linalg.norm(pos[:, eff_joint] - targets, axis=-1)
@@ -130,9 +143,30 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
             pos[:, k] = pos[:, pk] + qrot(wrot[:, pk], np.broadcast_to(np.array(rig.joints[k].offset), (N, 3)))
             wrot[:, k] = qmul(wrot[:, pk], rot[:, k])
 
+    def wanted(e, j, base, rot, wrot, live):
+        """Local rotation of effector e's moving joint j turning its effector joint's frame onto the target."""
+        turn = qmul(qconj(wrot[:, j]), wrot[:, eff_joint[e]])
+        q = _normalize_q(qmul(qconj(base), qmul(rot_t[:, e], qconj(turn))))
+        scratch = rot.copy(), pos.copy(), wrot.copy()
+        finish(j, q, base, *scratch, live)  # only for its clamp: the pose is not changed here
+        return scratch[0][:, j]
+
     def sweep(rot, pos, wrot):
         rot, pos, wrot = rot.copy(), pos.copy(), wrot.copy()
         rows = np.arange(N)
+        aim = np.broadcast_to(eff_joint, (N, E)).copy()  # the joint whose position each effector's term moves
+        goal = targets.copy()
+        for e in range(E):
+            m = move[e, 0] if rotations is not None else -1
+            if m < 0 or m == eff_joint[e] or not has_rot[:, e].any():
+                continue
+            p = rig.joints[m].parent
+            base = q_root if p < 0 else wrot[:, p]
+            q = wanted(e, m, base, rot, wrot, has_rot[:, e])
+            v = qrot(qconj(wrot[:, m]), pos[:, eff_joint[e]] - pos[:, m])
+            shifted = targets[:, e] - qrot(qmul(base, q), v)
+            goal[:, e] = np.where(has_rot[:, e, None], shifted, goal[:, e])
+            aim[:, e] = np.where(has_rot[:, e], m, aim[:, e])
         for j in reversed(range(J)):
             joint = rig.joints[j]
             if joint.dof == 0 or not active[:, j].any():
@@ -145,7 +179,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
             axes = np.array(joint.axes or [(0.0, 0.0, 1.0)] * 2)
             ax = axes[0]
             mine = on & below[j]  # (N, E) effectors this joint serves
-            far = np.linalg.norm(targets - pos[:, :1], axis=-1) > reach  # (N, E) out of the whole chain's reach
+            far = np.linalg.norm(goal - pos[:, :1], axis=-1) > reach  # (N, E) out of the whole chain's reach
             out_of_reach = np.all(far | ~mine, axis=1)
             kids = [c for c in rig.children[j]]
             n_kids = np.sum([active[:, c] for c in kids], axis=0) if kids else np.zeros(N, int)
@@ -160,8 +194,8 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                 s_cross = np.zeros(N)
                 s_dot = np.zeros(N)
                 for e in range(E):
-                    u = qrot(inv_base, pos[:, eff_joint[e]] - pos_j)
-                    v = qrot(inv_base, targets[:, e] - pos_j)
+                    u = qrot(inv_base, pos[rows, aim[:, e]] - pos_j)
+                    v = qrot(inv_base, goal[:, e] - pos_j)
                     u = u - _dot(u, ax)[:, None] * ax
                     v = v - _dot(v, ax)[:, None] * ax
                     w = np.where(mine[:, e], weights[:, e], 0.0)
@@ -174,18 +208,18 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                     e_one = E - 1 - np.argmax(mine[:, ::-1], axis=1)  # the (last) effector served
                     s = rig.dof_start[j]
                     reached = _hinge_reach(q, ax, lo_all[s], hi_all[s], qrot(inv_base, pos_j - pos[:, p]),
-                                           qrot(inv_base, pos[rows, eff_joint[e_one]] - pos_j),
-                                           np.linalg.norm(targets[rows, e_one] - pos[:, p], axis=-1))
+                                           qrot(inv_base, pos[rows, aim[rows, e_one]] - pos_j),
+                                           np.linalg.norm(goal[rows, e_one] - pos[:, p], axis=-1))
                     q_new = np.where(use[:, None], reached, q_new)
             else:
-                lever = np.linalg.norm(pos[:, eff_joint] - pos_j[:, None], axis=-1)  # (N, E)
+                lever = np.linalg.norm(pos[rows[:, None], aim] - pos_j[:, None], axis=-1)  # (N, E)
                 n_eff = np.sum(mine & (lever**2 > 1e-18), axis=1)
                 delta = np.tile(_IDENTITY, (N, 1))
                 for r in range(MULTI_ROUNDS):
                     acc = np.zeros((N, 4))
                     for e in range(E):
-                        u = qrot(delta, qrot(inv_base, pos[:, eff_joint[e]] - pos_j))
-                        v = qrot(inv_base, targets[:, e] - pos_j)
+                        u = qrot(delta, qrot(inv_base, pos[rows, aim[:, e]] - pos_j))
+                        v = qrot(inv_base, goal[:, e] - pos_j)
                         nu = np.linalg.norm(u, axis=-1)
                         nv = np.linalg.norm(v, axis=-1)
                         ok = mine[:, e] & (nu > 1e-9) & (nv > 1e-9)
@@ -217,10 +251,40 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                 cur = qrot(q, np.broadcast_to(eff_axis[e], (N, 3)))
                 want = qrot(qconj(base), orient[:, e])
                 finish(j, _normalize_q(qmul(swing(cur, want), q)), base, rot, pos, wrot, has)
+        # full rotation targets, parents first: the moving joint turns, the ball joint above swivels for the twist
+        for j in range(J if rotations is not None else 0):
+            for e in range(E):
+                if move[e, 0] != j or not has_rot[:, e].any():
+                    continue
+                live = has_rot[:, e]
+                for rnd in range(2):
+                    p = rig.joints[j].parent
+                    base = q_root if p < 0 else wrot[:, p]
+                    finish(j, wanted(e, j, base, rot, wrot, live), base, rot, pos, wrot, live)
+                    b = move[e, 1]
+                    if rnd == 0 and b >= 0:
+                        a = pos[:, j] - pos[:, b]
+                        na = np.linalg.norm(a, axis=-1, keepdims=True)
+                        ok = live & (na[:, 0] ** 2 > 1e-12)
+                        a = a / np.maximum(na, 1e-300)
+                        left = qmul(rot_t[:, e], qconj(wrot[:, eff_joint[e]]))
+                        ang = 2.0 * np.arctan2(_dot(left[:, :3], a), left[:, 3])
+                        ang = np.arctan2(np.sin(ang), np.cos(ang))
+                        pb = rig.joints[b].parent
+                        bb = q_root if pb < 0 else wrot[:, pb]
+                        half = 0.5 * ang
+                        turn = np.concatenate([a * np.sin(half)[:, None], np.cos(half)[:, None]], axis=-1)
+                        qb = qmul(qconj(bb), _normalize_q(qmul(turn, wrot[:, b])))
+                        finish(b, qb, bb, rot, pos, wrot, ok)
         return rot, pos, wrot
 
     def turn_of(wrot):
-        return turn_error(rig, wrot, weights, orient) if has_orient else np.zeros(N)
+        out = turn_error(rig, wrot, weights, orient) if has_orient else np.zeros(N)
+        if rotations is not None:
+            dot = np.abs(np.sum(wrot[:, eff_joint] * rot_t, -1))
+            ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+            out = np.maximum(out, np.max(np.where(has_rot, ang, 0.0), axis=1))
+        return out
 
     err = error_of(pos)
     turn = turn_of(wrot)

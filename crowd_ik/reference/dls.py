@@ -142,8 +142,16 @@ def _balance_sums(R: _Rig, pos):
     return total, acc[..., :3] - acc[..., 3:] * pos
 
 
-def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0):
-    """(F, max position error, max(orientation error * L, balance error)); F's position terms as in the kernel."""
+def _rotation_vector(rot_t, q):
+    """(n, 3) world rotation vectors log(q_target q^-1): the turn that takes world rotation q onto rot_t."""
+    return qlog(qmul(rot_t, qconj(q)))
+
+
+def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0, rot_t=None, rot_w=None):
+    """(F, max position error, max(orientation error * L, balance error)); F's position terms as in the kernel.
+
+    rot_t (n, E, 4), rot_w (n, E) or None: full rotation targets, each adding rot_w (L angle)^2 to F and
+    L angle to the orientation error."""
     rig = R.rig
     n = tgt.shape[0]
     f = np.zeros(n)
@@ -169,6 +177,11 @@ def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w
             ang = length * np.linalg.norm(swing_vector(a, orient[:, e]), axis=-1)
             f += np.where(has, w * ang * ang, 0.0)
             oerr = np.where(has, np.maximum(oerr, ang), oerr)
+        if rot_w is not None:
+            hr = rot_w[:, e] > 0
+            ang = length * np.linalg.norm(_rotation_vector(rot_t[:, e], st["wrot"][:, eff.joint]), axis=-1)
+            f += np.where(hr, rot_w[:, e] * ang * ang, 0.0)
+            oerr = np.where(hr, np.maximum(oerr, ang), oerr)
     if rest_w > 0 or vel_w > 0:
         for j, jt in enumerate(R.joints):
             k, s = jt["k"], jt["s"]
@@ -206,16 +219,19 @@ def _axes(jt, base, theta):
     return [qrot(base, ex), qrot(rx, ey), qrot(qmul(rx, axis_angle(np.eye(3)[1], theta[:, s + 1])), ez)]
 
 
-def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0):
-    """(jac (n, 5E [+ 2], D), aimed error (n, 5E [+ 2]), g (n, D)); rows of inactive effectors/orientations are zero.
+def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0, rot_t=None, rot_w=None):
+    """(jac (n, 5E [+ 2] [+ 3E], D), aimed error (n, ...), g (n, D)); rows of inactive effectors/orientations are zero.
 
-    With bal_w > 0 the last two rows are the balance rows (x, z of c - s).
+    With bal_w > 0 the two rows after the effectors' 5E are the balance rows (x, z of c - s); with rotation
+    targets (rot_w not None) 3 rows per effector follow: sqrt(rot_w) L log(q_target q^-1) (clamped to
+    ORI_CLAMP), columns sqrt(rot_w) L (world DOF axis).
     """
     rig = R.rig
     n, D, E = tgt.shape[0], rig.n_dof, rig.n_effectors
     nb = 2 if bal_w > 0 else 0
-    jac = np.zeros((n, 5 * E + nb, D))
-    err = np.zeros((n, 5 * E + nb))
+    nr = 3 * E if rot_w is not None else 0
+    jac = np.zeros((n, 5 * E + nb + nr, D))
+    err = np.zeros((n, 5 * E + nb + nr))
     pos, wrot, theta = st["pos"], st["wrot"], st["theta"]
     q_root = _yaw(st["yaw"])
     eff_axis = rig.arrays["eff_axis"].astype(np.float64)
@@ -246,6 +262,13 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, ba
             scale = np.where(has, sw[:, 0] * length, 0.0)
             err[:, r + 3] = scale * np.sum(rv * u1, -1)
             err[:, r + 4] = scale * np.sum(rv * u2, -1)
+        rr = 5 * E + nb + 3 * e
+        if rot_w is not None:
+            sr = np.sqrt(np.maximum(rot_w[:, e], 0.0))[:, None] * length
+            rq = _rotation_vector(rot_t[:, e], wrot[:, eff.joint])
+            ang = np.linalg.norm(rq, axis=-1, keepdims=True)
+            rq = np.where(ang > ORI_CLAMP, rq * (ORI_CLAMP / np.maximum(ang, 1e-30)), rq)
+            err[:, rr : rr + 3] = sr * rq
         for jn in rig.path_to_root(eff.joint):
             jt = R.joints[jn]
             if jt["k"] == 0:
@@ -254,6 +277,8 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, ba
                 axes_of[jn] = _axes(jt, _parent_rot(jt, q_root, wrot), theta)
             lever = p_eff - pos[:, jn]
             for c, col in enumerate(axes_of[jn]):
+                if rot_w is not None:
+                    jac[:, rr : rr + 3, jt["s"] + c] = sr * col
                 jac[:, r : r + 3, jt["s"] + c] = np.where(on[:, None], sw * np.cross(col, lever), 0.0)
                 if np.any(has):
                     scale = np.where(has, sw[:, 0] * length, 0.0)
@@ -362,7 +387,7 @@ def _kick(R: _Rig, theta, free, joint_w):
 
 def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
               tolerance=1e-3, damping=None, rest_weight=0.0, velocity_weight=0.0, joint_weights=None,
-              balance_weight=0.0):
+              balance_weight=0.0, rotations=None, rotation_weights=None):
     """Solve N characters from local rotations rot (N, J, 4); returns (rot, world_pos, error, iterations, stalled).
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world metres; weights (N, E) (default ones);
@@ -370,7 +395,8 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     arguments as in Crowd.solve(method="dls"). Float64 throughout; each pass of the loop below is
     one pass of the kernel's per-character loop, over every character still running. (The kernel
     also voids a step whose float32 Cholesky meets a non-positive pivot; in float64 with lam > 0
-    that cannot happen.)
+    that cannot happen.) rotations (N, E, 4) x y z w full rotation targets of the effector joints' world
+    rotations with rotation_weights (N, E) (0 or a zero row: none), or None.
     """
     joint_w = np.ones(rig.n_dof) if joint_weights is None else np.asarray(joint_weights, np.float64)
     settings = dls_settings(rig, damping, joint_w)
@@ -385,7 +411,16 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     rest_w, vel_w, bal_w = float(rest_weight), float(velocity_weight), float(balance_weight)
     if bal_w > 0 and not settings["has_feet"]:
         raise ValueError("balance_weight: the rig has no foot effectors")
+    rot_t = rot_w = None
+    if rotations is not None:
+        rot_t = np.asarray(rotations, np.float64).reshape(N, E, 4)
+        rot_w = np.ones((N, E)) if rotation_weights is None else np.broadcast_to(
+            np.asarray(rotation_weights, np.float64), (N, E))
+        rot_w = np.where(np.sum(rot_t * rot_t, -1) > 0, rot_w, 0.0)
     obj_args = (tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w)
+
+    def rot_of(ids):
+        return (None, None) if rot_w is None else (rot_t[ids], rot_w[ids])
 
     rot = np.array(rot, np.float64)
     theta = np.zeros((N, D))
@@ -397,7 +432,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     st = _apply(R, dict(theta=theta, theta0=theta, rot=rot, q0=rot, pos=pos, wrot=wrot, yaw=yaw), np.zeros((N, D)))
     st["theta0"], st["q0"] = st["theta"].copy(), st["rot"].copy()
     # (N, 3): F, max position error, max(orientation error * L, balance error)
-    obj = np.stack(_objective(R, st, *obj_args), axis=1)
+    obj = np.stack(_objective(R, st, *obj_args, *rot_of(slice(None))), axis=1)
     ref_f, ref_acc = obj[:, 0].copy(), np.zeros(N, np.int32)
     lam = np.full(N, lam0)
     accepted = np.zeros(N, np.int32)
@@ -430,7 +465,8 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         if m.size == 0:
             return
         sub = _take(st, m)
-        jac, err, g = _build(R, sub, tgt[m], weights[m], orient[m], eff_lim, length, rest_w, vel_w, bal_w)
+        jac, err, g = _build(R, sub, tgt[m], weights[m], orient[m], eff_lim, length, rest_w, vel_w, bal_w,
+                             *rot_of(m))
         fr = np.ones((m.size, D))
         lam2 = lam[m] ** 2
         stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w)
@@ -471,7 +507,8 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     while go.any():
         idx = np.flatnonzero(go)
         trial = _apply(R, _take(st, idx), step[idx])
-        new = np.stack(_objective(R, trial, tgt[idx], weights[idx], orient[idx], *obj_args[3:]), axis=1)
+        new = np.stack(_objective(R, trial, tgt[idx], weights[idx], orient[idx], *obj_args[3:], *rot_of(idx)),
+                       axis=1)
         kicked = kick[idx]
         better = kicked | (new[:, 0] < obj[idx, 0])
         flat = ~kicked & better & (obj[idx, 0] - new[:, 0] < FLAT * obj[idx, 0])

@@ -24,6 +24,9 @@ class SolveBuffers:
         self.poles = np.zeros((N, E, 3), np.float32)  # pole points (world), pole_on (N, E) 1 where given
         self.pole_on = np.zeros((N, E), np.int32)
         self.poles_zero = True  # True while pole_on holds zeros
+        self.rotations = np.zeros((N, E, 4), np.float32)  # rotation targets (x y z w), rot_w (N, E) 0 where none
+        self.rot_w = np.zeros((N, E), np.float32)
+        self.rot_zero = True  # True while rot_w holds zeros
         self.error = np.zeros(N, np.float32)
         self.iterations = np.zeros(N, np.int32)
         self.stalled = np.zeros(N, np.int32)
@@ -45,6 +48,12 @@ class SolveBuffers:
         elif not self.poles_zero:
             self.pole_on.fill(0)
         self.poles_zero = req.poles is None
+        if req.rotations is not None:
+            np.copyto(self.rotations, req.rotations)
+            np.copyto(self.rot_w, req.rotation_weights)
+        elif not self.rot_zero:
+            self.rot_w.fill(0.0)
+        self.rot_zero = req.rotations is None
 
 
 def limited_rig(crowd) -> tuple:
@@ -64,6 +73,12 @@ def goal(crowd, orientations: bool = True) -> tuple:
     """What the solve aims at: targets, weights and (by default) the orientation targets."""
     b = crowd.buffers
     return (b.targets, b.weights, b.orient) if orientations else (b.targets, b.weights)
+
+
+def rotation_goal(crowd) -> tuple:
+    """Full rotation targets: rotations (N, E, 4) x y z w, rot_w (N, E) (0 where none)."""
+    b = crowd.buffers
+    return b.rotations, b.rot_w
 
 
 def result(crowd) -> tuple:

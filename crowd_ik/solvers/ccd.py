@@ -7,6 +7,30 @@ import numpy as np
 from crowd_ik.solvers import bundles
 
 
+def moving_joints(rig) -> np.ndarray:
+    """(E, 2) int32: per effector [m, b]: m the nearest joint with DOFs at or above its joint (the joint that turns
+    the effector's frame: a hand's wrist, an ankle itself), b the nearest ball joint above m whose subtree holds
+    no other effector (a shoulder, a hip: it swivels the limb for the twist m lacks); -1 where none."""
+    out = np.full((rig.n_effectors, 2), -1, np.int32)
+    kind = rig.arrays["kind"]
+    holds = np.zeros((rig.n_joints, rig.n_effectors), bool)
+    for e, eff in enumerate(rig.effectors):
+        holds[rig.path_to_root(eff.joint), e] = True
+    for e, eff in enumerate(rig.effectors):
+        path = rig.path_to_root(eff.joint)
+        for n, j in enumerate(path):
+            if kind[j] > 0:
+                out[e, 0] = j
+                for b in path[n + 1 :]:
+                    if holds[b].sum() > 1:
+                        break
+                    if kind[b] == 3:
+                        out[e, 1] = b
+                        break
+                break
+    return out
+
+
 def solve(crowd, req) -> None:
     ti, rig = crowd.ti, crowd.rig
     # below[j, e] = 1 where effector e's joint lies in joint j's subtree (j included)
@@ -20,10 +44,15 @@ def solve(crowd, req) -> None:
     from crowd_ik.kernels import ccd
 
     b = crowd.buffers
-    goals = int(not b.orient_zero)  # compile time: the plain sweep stays as it was
+    # compile time: the plain sweep stays as it was; 1 axis targets, 2 full rotation targets
+    goals = int(not b.orient_zero) | (2 if req.rotations is not None else 0)
+    move = crowd.scratch("ccd_eff_move", ti.i32, (rig.n_effectors, 2))
+    move.from_numpy(moving_joints(rig))
     ccd.ccd_solve(
         *bundles.limited_rig(crowd), below, reach, *bundles.pose(crowd), *bundles.goal(crowd),
+        *bundles.rotation_goal(crowd), move,
         crowd.scratch("ccd_rel_t", ti.math.vec3, (crowd.n, rig.n_effectors)),
+        crowd.scratch("ccd_aim_t", ti.math.vec3, (crowd.n, rig.n_effectors)),
         crowd.scratch("ccd_eff_pos", ti.math.vec3, (crowd.n, rig.n_effectors)),
         req.max_iterations, req.tolerance, req.rotation_tolerance, goals, *bundles.result(crowd),
     )

@@ -30,6 +30,10 @@ def _general(crowd, req) -> None:
     # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
     D, J = max(rig.n_dof, 1), rig.n_joints
     R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(req.balance_weight > 0)
+    extra = 0  # compile-time feature bits of kernels/dls.py: 1 full rotation targets
+    if req.rotations is not None:
+        extra |= 1
+        R += 3 * rig.n_effectors
     cfg = dls_settings(rig, req.damping, req.joint_weights)
     joint_w = np.zeros(D + 1, np.float32)
     joint_w[: rig.n_dof] = 1.0 if req.joint_weights is None else req.joint_weights
@@ -46,14 +50,14 @@ def _general(crowd, req) -> None:
         small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         ra["eff_axis"], ra["eff_has_axis"],
         small["eff_lim"], small["joint_w"], small["com_w"], small["support_w"], *bundles.pose(crowd),
-        *bundles.goal(crowd),
+        *bundles.goal(crowd), *bundles.rotation_goal(crowd),
         crowd.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
         crowd.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
         crowd.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
         crowd.scratch("dls_jac", ti.f32, (N, R, D + 1)), crowd.scratch("dls_rows", ti.f32, (N, 2, R)),
         crowd.scratch("dls_sys", ti.f32, (N, R, R)),
         req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
-        req.rest_weight, req.velocity_weight, req.balance_weight, *bundles.result(crowd),
+        req.rest_weight, req.velocity_weight, req.balance_weight, extra, *bundles.result(crowd),
     )
 
 

@@ -8,7 +8,8 @@ import numpy as np
 def rotation_error(rig, world_rot: np.ndarray, req) -> np.ndarray:
     """(N,) float32 radians: per character the max over its effectors with an axis (orientation) target (weight
     > 0) of the angle between the effector's world axis, q = world_rot[:, eff_joint[e]] applied to its local
-    axis, and the target; 0 for a character with none.
+    axis, and the target, and over those with a full rotation target (rotation weight > 0) of
+    2 acos |<q, q_target>|; 0 for a character with none.
 
     world_rot (N, J, 4) float32 x y z w (Crowd.world_rotations()); req a SolveRequest.
     """
@@ -25,4 +26,9 @@ def rotation_error(rig, world_rot: np.ndarray, req) -> np.ndarray:
         has = (np.sum(req.orientations * req.orientations, axis=-1) > 0) & (req.weights > 0)
         cos = np.clip(np.sum(world_axis * req.orientations, axis=-1), -1.0, 1.0)
         out = np.maximum(out, np.max(np.where(has, np.arccos(cos), 0.0), axis=1))
+    if req.rotations is not None:  # full rotation targets: 2 acos |<q, q_target>|
+        dot = np.abs(np.sum(q * req.rotations.astype(np.float64), axis=-1))
+        ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+        has = req.rotation_weights > 0
+        out = np.maximum(out, np.max(np.where(has, ang, 0.0), axis=1))
     return out.astype(np.float32)

@@ -33,12 +33,17 @@ class SolveRequest:
     balance_weight: float = 0.0
     poles: np.ndarray | None = None  # (N, E, dim) world points, NaN rows (no pole) kept NaN
     rotation_tolerance: float = 1e-2
+    # full rotation targets: (N, E, 4) unit quaternions x y z w (zero rows where none) and their weights (N, E)
+    # (0 where none), or None for no rotation target at all
+    rotations: np.ndarray | None = None
+    rotation_weights: np.ndarray | None = None
 
     @property
     def plain(self) -> bool:
         """True when no secondary term shapes the solve (only targets and weights)."""
         return (self.orientations is None and self.rest_weight == 0 and self.velocity_weight == 0
-                and self.balance_weight == 0 and self.joint_weights is None and self.poles is None)
+                and self.balance_weight == 0 and self.joint_weights is None and self.poles is None
+                and self.rotations is None)
 
 
 def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -63,7 +68,7 @@ def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> t
 
 def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, weights, orientations,
                   rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles=None,
-                  rotation_tolerance=1e-2) -> SolveRequest:
+                  rotation_tolerance=1e-2, rotations=None, rotation_weights=None) -> SolveRequest:
     """The checked SolveRequest for n characters of `rig`, or a ValueError naming the argument."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
@@ -110,4 +115,28 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
         pole, has = rows_or_nan(poles, "poles", (n, E, dim), limit=MAX_EXTENT)
         if np.any(has):
             req.poles = np.where(has[..., None], pole, np.nan).astype(np.float32)
+    if rotations is None and rotation_weights is not None:
+        raise ValueError("rotation_weights: given without rotations")
+    if rotations is not None:
+        rot, has = rows_or_nan(rotations, "rotations", (n, E, 4))
+        norms = np.sqrt(np.einsum("nek,nek->ne", rot.astype(np.float64), rot.astype(np.float64)))
+        bad = has & (np.abs(norms - 1.0) > 1e-2)
+        if np.any(bad):
+            i, e = np.argwhere(bad)[0]
+            raise ValueError(f"rotations: row [{i}, {e}] is not a unit quaternion x y z w (norm {norms[i, e]:.6g}; "
+                             f"all NaN means none)")
+        rw = np.ones((n, E), np.float32)
+        if rotation_weights is not None:
+            rw = as_array(rotation_weights, "rotation_weights", (n, E))
+            if np.any(rw < 0):
+                raise ValueError(f"rotation_weights: must be >= 0 (got {float(rw.min())})")
+        rw = np.where(has, rw, 0.0).astype(np.float32)
+        if dim == 2:
+            raise ValueError("rotations: a planar (dim=2) rig has no full rotation to aim; use targets")
+        if method == "fabrik" and np.any(rw > 0):
+            raise ValueError("rotations: full rotation targets are solved by method 'dls' or 'ccd', not 'fabrik' "
+                             "yet (issue 15)")
+        if np.any(rw > 0):
+            req.rotations = np.where(has[..., None], rot / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
+            req.rotation_weights = rw
     return req
