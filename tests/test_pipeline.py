@@ -187,3 +187,19 @@ def test_an_interrupt_while_draining_stops_the_writer_and_is_raised():
         signal.signal(signal.SIGALRM, previous)
     assert not writer._thread.is_alive()  # nobody writes into the sink while it is being finalised
     assert 1 <= len(sink.frames) < 12 and [int(f[0, 0, 0]) for f in sink.frames] == list(range(len(sink.frames)))
+
+
+def test_bench_render_workload_records_compare_and_targets():
+    from crowd_ik.bench.render import compare_render, format_render, render_scene, render_targets
+
+    rec = dict(render_scene("duel", (160, 96), 4), goal_fps=30.0, arch="cpu")
+    assert rec["scene"] == "duel" and rec["size"] == [160, 96] and rec["frames"] == 4 and rec["bytes"] > 0
+    assert rec["fps"] > 0 and rec["mode"] == "pipelined" and set(rec["stages_ms"]) >= {"simulate", "draw", "write"}
+    assert "render cpu duel 160x96" in format_render([rec], "cpu")[0]
+    slow = dict(rec, fps=rec["fps"] / 2)
+    lines = compare_render({"render": [slow]}, {"render": [rec]})
+    assert len(lines) == 1 and "+100.0%" in lines[0]
+    assert compare_render({"records": []}, {"render": [rec]}) == []  # an older JSON without renders
+    [target] = render_targets([dict(rec, fps=31.0)], "cpu")
+    assert target["met"] and target["unit"] == "per_s" and target["value"] == 31.0
+    assert not render_targets([dict(rec, fps=29.0)], "cpu")[0]["met"]
