@@ -70,10 +70,10 @@ def _pipeline_lines(p: dict | None) -> list[str]:
     if not p:
         return []
     st = p["stages_ms"]
-    return [f"  video       {p['fps']:.1f} frames/s ({p['mode']}), CPU {p['cpu_percent']:.0f} % "
-            f"(encoder {p['encoder_cpu_s']:.1f} s of {p['cpu_s'] + p['encoder_cpu_s']:.1f} s)",
-            f"  stages      simulate {st['simulate']:.1f}, draw {st['draw']:.1f}, overlay {st['overlay']:.1f}, "
-            f"write {st['write']:.1f}, wait {st['wait']:.1f} ms a frame"]
+    return [(f"  video       {p['fps']:.1f} frames/s ({p['mode']}), CPU {p['cpu_percent']:.0f} % "
+             f"(encoder {p['encoder_cpu_s']:.1f} s of {p['cpu_s'] + p['encoder_cpu_s']:.1f} s)"),
+            (f"  stages      simulate {st['simulate']:.1f}, draw {st['draw']:.1f}, overlay {st['overlay']:.1f}, "
+             f"write {st['write']:.1f}, wait {st['wait']:.1f} ms a frame")]
 
 
 __all__ = ["summary", "format_summary"]

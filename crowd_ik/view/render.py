@@ -382,7 +382,7 @@ class TrailPlan:
     (T, P+1, 2) int32 (4 fractional bits), thickness (T,), which pieces pass the depth test (T, P),
     and the pixel box (x0, y0, x1, y1) the alpha layer is composited in."""
 
-    __slots__ = ("fixed", "thick", "shown", "box")
+    __slots__ = ("box", "fixed", "shown", "thick")
 
     def __init__(self, fixed, thick, shown, box):
         self.fixed, self.thick, self.shown, self.box = fixed, thick, shown, box
@@ -462,7 +462,7 @@ class Overlay:
     """What goes over a rasterised frame: planned trails and HUD lines; paint(frame) draws them in
     place exactly as Renderer.render does when defer_overlay is off."""
 
-    __slots__ = ("trails", "hud_lines")
+    __slots__ = ("hud_lines", "trails")
 
     def __init__(self, trails: TrailPlan | None, hud_lines: list[str] | None):
         self.trails, self.hud_lines = trails, hud_lines
