@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from crowd_ik.view.render import draw_hud
 from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD
+from crowd_ik.view.render import draw_hud
 
 # BGR colours
 BACKGROUND = (34, 28, 26)
@@ -276,8 +276,8 @@ class HumanoidSession:
 
     def __init__(self, size=(720, 720), method: str = DEFAULT_METHOD, iterations: int = 20):
         from crowd_ik.crowd import Crowd
-        from crowd_ik.view.render import Camera
         from crowd_ik.rig import Rig
+        from crowd_ik.view.render import Camera
 
         self.size, self.method, self.iterations = tuple(size), method, iterations
         w, h = self.size
