@@ -27,7 +27,9 @@ Why this shape (see also crowd_ik/render.py):
   pixels without a hit see the ground plane y = 0 (anti-aliased 1 m grid, shadows, distance fog)
   or the sky gradient. The ground also hides the parts of capsules below y = 0. Everything about
   the ground and sky but the shadows depends on the camera alone, so `shade_background` computes
-  it once per camera and a ground pixel costs one multiply-add per channel.
+  it once per camera and a ground pixel costs one multiply-add per channel. A new camera's frame shades
+  every pixel anyway, so there one pass (`shade_frame_background`) computes, keeps and uses each
+  pixel's background.
 - Dirty tiles: `raster_capsules` and `splat_shadows` flag the TILE x TILE pixel tiles their screen
   boxes touch; `clear_buffers` and `shade_frame` work only on tiles drawn on this frame or the last,
   so the rest of a persistent frame buffer keeps its background (a crowd seen from afar covers a
@@ -54,7 +56,9 @@ from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND:
     _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, capsule_hit, dir_origin,
     effective_radius, empty_key, mark_tiles, pixel_range, row3, shadow_soft, shadow_value, sphere_bounds,
 )
-from crowd_ik.kernels.raster_shade import shade_background, shade_frame  # noqa: F401  (one module to launch from)
+from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
+    shade_background, shade_frame, shade_frame_background,
+)
 
 ndarray = ti.types.ndarray
 

@@ -75,6 +75,40 @@ def shade_capsule(base, n, rd, y):
     return base * ((ambient + DIFFUSE * diffuse) * ao) + (rim + spec)
 
 
+@ti.func
+def background_pixel(cam: ti.template(), px, py):
+    """shade_background's three values for pixel (px, py): (ground view depth or inf, brightness
+    factor or sky gradient, fog factor or 0)."""
+    eye = cam_vec(cam, 0)
+    fwd = cam_vec(cam, 9)
+    d = pixel_dir(cam, px, py)
+    rd = d.normalized()
+    tg = ground_hit(eye, rd)
+    b0 = ti.math.inf
+    b1 = 0.0
+    b2 = 0.0
+    if tg > 0.0:
+        g = eye + rd * tg
+        # Pixel footprint on the ground from the neighbouring pixels' rays (for grid anti-aliasing).
+        fwx = 1.0e3
+        fwz = 1.0e3
+        rx = d + cam_vec(cam, 3)  # rays through pixels (px + 1, py) and (px, py + 1)
+        ry = d - cam_vec(cam, 6)
+        if rx[1] < 0.0 and ry[1] < 0.0:
+            gx = eye - rx * (eye[1] / rx[1])
+            gy = eye - ry * (eye[1] / ry[1])
+            fwx = ti.max(ti.max(ti.abs(gx[0] - g[0]), ti.abs(gy[0] - g[0])), 1e-4)
+            fwz = ti.max(ti.max(ti.abs(gx[2] - g[2]), ti.abs(gy[2] - g[2])), 1e-4)
+        grid = ti.max(line_cover(g[0], fwx), line_cover(g[2], fwz))
+        f = 1.0 - ti.exp(-(tg / FOG_DISTANCE) * (tg / FOG_DISTANCE))
+        b0 = tg * rd.dot(fwd)
+        b1 = (1.0 - GRID_DARK * grid) * (1.0 - f)
+        b2 = f
+    else:
+        b1 = ti.sqrt(ti.math.clamp(rd[1], 0.0, 1.0))
+    return b0, b1, b2
+
+
 @ti.kernel
 def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dtype=ti.f32, ndim=3)):
     """What every pixel shows when no primitive covers it, for this camera: background (H, W, 3)
@@ -88,40 +122,18 @@ def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dty
     """
     for py in range(background.shape[0]):
         for px in range(background.shape[1]):
-            eye = cam_vec(cam, 0)
-            fwd = cam_vec(cam, 9)
-            d = pixel_dir(cam, px, py)
-            rd = d.normalized()
-            tg = ground_hit(eye, rd)
-            if tg > 0.0:
-                g = eye + rd * tg
-                # Pixel footprint on the ground from the neighbouring pixels' rays (for grid anti-aliasing).
-                fwx = 1.0e3
-                fwz = 1.0e3
-                rx = d + cam_vec(cam, 3)  # rays through pixels (px + 1, py) and (px, py + 1)
-                ry = d - cam_vec(cam, 6)
-                if rx[1] < 0.0 and ry[1] < 0.0:
-                    gx = eye - rx * (eye[1] / rx[1])
-                    gy = eye - ry * (eye[1] / ry[1])
-                    fwx = ti.max(ti.max(ti.abs(gx[0] - g[0]), ti.abs(gy[0] - g[0])), 1e-4)
-                    fwz = ti.max(ti.max(ti.abs(gx[2] - g[2]), ti.abs(gy[2] - g[2])), 1e-4)
-                grid = ti.max(line_cover(g[0], fwx), line_cover(g[2], fwz))
-                f = 1.0 - ti.exp(-(tg / FOG_DISTANCE) * (tg / FOG_DISTANCE))
-                background[py, px, 0] = tg * rd.dot(fwd)
-                background[py, px, 1] = (1.0 - GRID_DARK * grid) * (1.0 - f)
-                background[py, px, 2] = f
-            else:
-                background[py, px, 0] = ti.math.inf
-                background[py, px, 1] = ti.sqrt(ti.math.clamp(rd[1], 0.0, 1.0))
-                background[py, px, 2] = 0.0
+            b0, b1, b2 = background_pixel(cam, px, py)
+            background[py, px, 0] = b0
+            background[py, px, 1] = b1
+            background[py, px, 2] = b2
 
 
 @ti.func
 def shade_pixel(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
-                shadow: ti.template(), background: ti.template(), frame: ti.template(), depth: ti.template(), i0, i1,
-                fv, px, py):
-    """Shade pixel (px, py) into frame and depth (see shade_frame)."""
-    ground_z = background[py, px, 0]
+                shadow: ti.template(), frame: ti.template(), depth: ti.template(), i0, i1, fv, px, py, ground_z, b1,
+                b2):
+    """Shade pixel (px, py) into frame and depth (see shade_frame), given its background values
+    (ground_z, b1, b2) = background[py, px]."""
     col = ti.Vector([0.0, 0.0, 0.0])
     seen = ground_z
     key = keys[py, px]
@@ -138,12 +150,12 @@ def shade_pixel(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
         seen = z
     elif ground_z < ti.math.inf:
         dark = shadow_at(shadow, i0, i1, fv, px)
-        col = (ti.Vector([GROUND[0], GROUND[1], GROUND[2]]) * (background[py, px, 1] * (1.0 - dark))
-               + ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]]) * background[py, px, 2])
+        col = (ti.Vector([GROUND[0], GROUND[1], GROUND[2]]) * (b1 * (1.0 - dark))
+               + ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]]) * b2)
     else:
         horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
         zenith = ti.Vector([SKY_ZENITH[0], SKY_ZENITH[1], SKY_ZENITH[2]])
-        col = horizon + (zenith - horizon) * background[py, px, 1]
+        col = horizon + (zenith - horizon) * b1
     for c in ti.static(range(3)):
         frame[py, px, c] = ti.cast(ti.math.clamp(col[c], 0.0, 1.0) * 255.0 + 0.5, ti.u8)
     depth[py, px] = seen
@@ -176,4 +188,31 @@ def shade_frame(
         for tx in range(tiles.shape[1]):
             if tiles[ty, tx] != 0:
                 for px in range(tx * TILE, ti.min(tx * TILE + TILE, width)):
-                    shade_pixel(cam, pa, pb, color, keys, shadow, background, frame, depth, i0, i1, fv, px, py)
+                    shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py,
+                                background[py, px, 0], background[py, px, 1], background[py, px, 2])
+
+
+@ti.kernel
+def shade_frame_background(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    color: ndarray(dtype=ti.f32, ndim=2),
+    keys: ndarray(dtype=ti.i64, ndim=2),
+    shadow: ndarray(dtype=ti.i32, ndim=2),
+    background: ndarray(dtype=ti.f32, ndim=3),
+    frame: ndarray(dtype=ti.u8, ndim=3),
+    depth: ndarray(dtype=ti.f32, ndim=2),
+):
+    """shade_background then shade_frame of every pixel, in one pass (for a new camera, when every
+    tile is shaded anyway): each pixel's background is computed, stored for the frames that keep
+    this camera, and used at once, so the (H, W, 3) float32 buffer is not read back. The same
+    functions run on the same values, so the frame, depth and background are the same bit for bit."""
+    for py in range(keys.shape[0]):
+        i0, i1, fv = shadow_row(shadow, py)
+        for px in range(keys.shape[1]):
+            b0, b1, b2 = background_pixel(cam, px, py)
+            background[py, px, 0] = b0
+            background[py, px, 1] = b1
+            background[py, px, 2] = b2
+            shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py, b0, b1, b2)

@@ -9,10 +9,10 @@ The heavy part is five kernel launches per frame whatever the number of primitiv
 rasterise every capsule and sphere into an integer z-buffer (exact ray-capsule hits, `atomic_min`
 on (depth bits, id) keys, so frames are bit-identical across runs and thread counts), splat soft
 ground shadows into a half-resolution buffer, shade every pixel (sky gradient, ground grid,
-shadows, Lambert + ambient + rim capsules). The sky and the unshadowed ground are computed once
-per camera (a sixth launch when the camera changes). Bullet trails (anti-aliased lines fading along their
-length; drawn over the scene, without a depth test) and HUD text on a dark box are drawn
-afterwards with OpenCV.
+shadows, Lambert + ambient + rim capsules). The sky and the unshadowed ground are kept per camera
+(a new camera's shading pass, shade_frame_background, computes them too). Bullet trails
+(anti-aliased lines fading along their length; drawn over the scene, without a depth test) and HUD
+text on a dark box are drawn afterwards with OpenCV.
 
 Spheres are capsules with both ends at the centre, stored after the capsules: primitive id
 M + k is sphere k. `Renderer.timings` holds the last frame's milliseconds (raster: validation,
@@ -322,18 +322,19 @@ class Renderer:
 
         packed = self._camera.packed()
         self._cam.from_numpy(packed)
-        if self._background_cam is None or not np.array_equal(packed, self._background_cam):
-            kr.shade_background(self._cam, self._background)
+        new_camera = self._background_cam is None or not np.array_equal(packed, self._background_cam)
+        if new_camera:  # every pixel's background changes; shade_frame_background computes it below
             self._background_cam = packed
-            self._tiles.fill(1)  # every pixel's background changed
+            self._tiles.fill(1)
         if n:
             hosts = (self._host_a, self._host_b, self._host_r, self._host_c)
             kr.load_primitives(*hosts, n, self._pa, self._pb, self._radius, self._color)
         kr.clear_buffers(self._keys, self._shadow, self._tiles)
         kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys, self._tiles)
         kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow, self._tiles)
-        kr.shade_frame(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
-                       self._tiles, self._frame, self._depth)
+        shade = kr.shade_frame_background if new_camera else kr.shade_frame  # all tiles, or the dirty ones
+        shade(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
+              *(() if new_camera else (self._tiles,)), self._frame, self._depth)
         if self.frame_source is None:
             return self._frame.copy()
         out = self.frame_source()  # the frame buffer persists (dirty tiles): the frame is copied out
