@@ -71,16 +71,41 @@ def _check_nesting(text: str, source: str) -> None:
 
 def parse_scene(text: str, source: str = "<string>", path: Path | None = None) -> Scene:
     """Parse and validate TOML text; `source` names it in error messages."""
+    return _Validator(source).build(parse_toml(text, source), path)
+
+
+def parse_toml(text: str, source: str) -> dict:
+    """TOML text -> dict; nesting deeper than MAX_NESTING and syntax errors raise ValueError naming
+    `source` and the line (scene files and jobs files alike)."""
     _check_nesting(text, source)
     try:
-        raw = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         msg = str(exc)
         m = _LINE.search(msg)
         where = f"line {m.group(1)}, column {m.group(2)}: " if m else ""
         problem = _LINE.sub("", msg).strip()
         raise ValueError(f"{source}: {where}invalid TOML: {problem}") from None
-    return _Validator(source).build(raw, path)
+
+
+def read_text_file(path: Path, source: str, what: str, limit: int) -> str:
+    """The UTF-8 text of a small input file (a scene, a jobs file): only a regular file of at most
+    `limit` bytes is read (a FIFO would block, /dev/zero never ends); problems name `source`."""
+    if not path.exists():
+        raise FileNotFoundError(f"{source}: no such {what}")
+    if path.is_dir():
+        raise IsADirectoryError(f"{source}: is a folder, not a {what}")
+    if not path.is_file():
+        raise ValueError(f"{source}: not a regular file")
+    size = path.stat().st_size
+    if size > limit:
+        raise ValueError(f"{source}: {size:,} bytes; a {what} holds at most {limit:,}")
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{source}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{source}: cannot be read ({exc.strerror or exc})") from None
 
 
 def shipped_scenes() -> list[Path]:
@@ -110,21 +135,7 @@ def load_scene(path: str | Path | None = None) -> Scene:
         by_name = {s.stem: s for s in shipped_scenes()}
         if p.name in by_name:
             p = by_name[p.name]
-    if not p.exists():
-        raise FileNotFoundError(f"{path}: no such scene file")
-    if p.is_dir():
-        raise IsADirectoryError(f"{path}: is a folder, not a scene file")
-    if not p.is_file():  # a FIFO would block, /dev/zero never ends
-        raise ValueError(f"{path}: not a regular file")
-    size = p.stat().st_size
-    if size > MAX_SCENE_BYTES:
-        raise ValueError(f"{path}: {size:,} bytes; a scene file holds at most {MAX_SCENE_BYTES:,}")
-    try:
-        text = p.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start})") from None
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    text = read_text_file(p, str(path), "scene file", MAX_SCENE_BYTES)
     return parse_scene(text, source=str(path) if p == Path(path) else str(p), path=p)
 
 

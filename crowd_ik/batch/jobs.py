@@ -27,11 +27,12 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from crowd_ik.scene import MAX_SEED, Scene, apply_table, check_table, load_scene, scene_with, shipped_scenes
+from crowd_ik.scene import (
+    MAX_SEED, Scene, apply_table, check_table, load_scene, parse_toml, read_text_file, scene_with, shipped_scenes,
+)
 from crowd_ik.solvers.registry import METHODS
 
 MAX_JOBS = 100_000
@@ -39,7 +40,6 @@ MAX_JOBS_BYTES = 1 * 2**20
 TOP_KEYS = ("scenes", "seeds", "solvers", "labels", "timeout_s", "overrides", "job")
 JOB_KEYS = ("scene", "seed", "solver", "labels", "timeout_s")
 _RANGE = re.compile(r"\s*(\d+)\s*\.\.\s*(\d+)\s*")
-_LINE = re.compile(r"\(at line (\d+), column (\d+)\)")
 
 __all__ = ["Job", "load_jobs", "parse_jobs", "MAX_JOBS"]
 
@@ -153,33 +153,7 @@ class _Reader:
 
 def _read(path: Path) -> tuple[dict, str]:
     source = str(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{source}: no such jobs file")
-    if path.is_dir():
-        raise IsADirectoryError(f"{source}: is a folder, not a jobs file")
-    if not path.is_file():
-        raise ValueError(f"{source}: not a regular file")
-    size = path.stat().st_size
-    if size > MAX_JOBS_BYTES:
-        raise ValueError(f"{source}: {size:,} bytes; a jobs file holds at most {MAX_JOBS_BYTES:,}")
-    try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{source}: not UTF-8 text (byte {exc.start})") from None
-    except OSError as exc:
-        raise ValueError(f"{source}: cannot be read ({exc.strerror or exc})") from None
-    return _parse_toml(text, source), source
-
-
-def _parse_toml(text: str, source: str) -> dict:
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = _LINE.search(str(exc))
-        where = f"line {m.group(1)}, column {m.group(2)}: " if m else ""
-        raise ValueError(f"{source}: {where}invalid TOML: {_LINE.sub('', str(exc)).strip()}") from None
-    except RecursionError:
-        raise ValueError(f"{source}: invalid TOML: arrays or tables nested too deeply") from None
+    return parse_toml(read_text_file(path, source, "jobs file", MAX_JOBS_BYTES), source), source
 
 
 def load_jobs(path: str | Path) -> list[Job]:
