@@ -14,7 +14,6 @@ Real (video) time, like the player's walk.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
