@@ -27,12 +27,16 @@ def _type_checking_blocks(tree) -> set[int]:
             for stmt in node.body for n in ast.walk(stmt)}
 
 
+def _import_nodes(tree):
+    """The Import / ImportFrom nodes of a module at every level, TYPE_CHECKING blocks left out."""
+    skip = _type_checking_blocks(tree)
+    return [node for node in ast.walk(tree)
+            if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in skip]
+
+
 def _imports(tree) -> set[str]:
     out = set()
-    skip = _type_checking_blocks(tree)
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
+    for node in _import_nodes(tree):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module:
@@ -78,10 +82,7 @@ def import_graph() -> dict[str, set[str]]:
     graph = {}
     for mod, tree in trees.items():
         deps = set()
-        skip = _type_checking_blocks(tree)
-        for node in ast.walk(tree):
-            if id(node) in skip:
-                continue
+        for node in _import_nodes(tree):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
