@@ -17,6 +17,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from crowd_ik.game.player import MAX_AIM  # the bound the player's steering applies
 from crowd_ik.io.csv_table import finite, read_table
 
 HEADER = ("frame", "move_x", "move_z", "aim_x", "aim_y", "aim_z", "fire")
@@ -24,7 +25,6 @@ SETTINGS_TAG = "# crowd-ik play inputs:"
 SETTING_KEYS = ("scene", "seed", "fps", "size", "solver")
 DECIMALS = 6  # inputs are rounded to this many decimals before they are applied
 MAX_ROWS = 1_000_000
-MAX_AIM = 1e6  # metres: aim points farther out than this are refused
 
 
 def _round(v: float) -> float:
