@@ -12,9 +12,13 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.solvers import bundles, settings
+from crowd_ik.solvers.registry import CCD, DLS, FABRIK
 
 
 def solve(crowd, req) -> None:
+    if req.rotations is not None:
+        raise ValueError(f"rotations: full rotation targets are solved by method {DLS!r} or {CCD!r}, "
+                         f"not {FABRIK!r} yet")
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
         _free(crowd, req.max_iterations, req.tolerance)
         return

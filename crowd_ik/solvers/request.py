@@ -12,7 +12,7 @@ import numpy as np
 
 from crowd_ik.checks import MAX_ITERATIONS, as_array, is_number, non_negative, positive_int
 from crowd_ik.rig import MAX_EXTENT, Rig
-from crowd_ik.solvers.registry import CCD, DLS, FABRIK, METHODS
+from crowd_ik.solvers.registry import METHODS
 
 
 @dataclass
@@ -133,9 +133,6 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
         rw = np.where(has, rw, 0.0).astype(np.float32)
         if dim == 2:
             raise ValueError("rotations: a planar (dim=2) rig has no full rotation to aim; use targets")
-        if method == FABRIK and np.any(rw > 0):
-            raise ValueError(f"rotations: full rotation targets are solved by method {DLS!r} or {CCD!r}, "
-                             f"not {FABRIK!r} yet")
         if np.any(rw > 0):
             req.rotations = np.where(has[..., None], rot / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
             req.rotation_weights = rw
