@@ -10,6 +10,7 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 
 import taichi as ti
 
+from crowd_ik.kernels.fabrik_rotation import extended_toward, rotation_error, turn_onto_targets
 from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
@@ -79,15 +80,27 @@ def forward_joint(i, j, p, length, fallback, work: ti.template(), acc_w: ti.temp
 
 
 @ti.func
-def backward_pass(i, parent: ti.template(), offset: ti.template(), eff_joint: ti.template(), targets: ti.template(),
-                  weights: ti.template(), world_pos: ti.template(), work: ti.template(), acc_w: ti.template()):
-    """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints."""
+def backward_pass(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), eff_joint: ti.template(),
+                  targets: ti.template(), weights: ti.template(), local_rot: ti.template(), world_pos: ti.template(),
+                  work: ti.template(), acc_w: ti.template(), rot_t: ti.template(), rot_w: ti.template(), use_rot):
+    """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints.
+    With rotation targets (use_rot) a fixed effector joint proposes its parent where the target rotation puts it."""
     J = parent.shape[0]
     seed_targets(i, eff_joint, targets, weights, work, acc_w)
     for jj in range(J - 1):
         j = J - 1 - jj
         length = offset[j].norm()
-        backward_joint(i, j, parent[j], length, -offset[j] / length, world_pos, work, acc_w)
+        if use_rot and acc_w[i, j] > 0.0:
+            p = parent[j]
+            w = acc_w[i, j]
+            pj = work[i, j] / w
+            toward = safe_normalize(world_pos[i, p] - pj, -offset[j] / length)
+            toward = extended_toward(i, j, length, toward, kind, offset, eff_joint, local_rot, rot_t, rot_w)
+            work[i, j] = pj
+            work[i, p] += w * (pj + length * toward)
+            acc_w[i, p] += w
+        else:
+            backward_joint(i, j, parent[j], length, -offset[j] / length, world_pos, work, acc_w)
     if acc_w[i, 0] > 0.0:
         work[i, 0] = work[i, 0] / acc_w[i, 0]
 
@@ -281,7 +294,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                           root_yaw: ti.template(),
                           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
                           weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template(),
-                          use_orient):
+                          use_orient, rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template(), use_rot):
     """Rotations from the proposed positions, clamped to the limits, then FK, in one topological sweep."""
     q_root = yaw_quat(root_yaw[i])
     for j in range(parent.shape[0]):
@@ -340,6 +353,9 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             for e in range(eff_joint.shape[0] if use_orient else 0):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
                     q = align_axis(k, axes[j, 0], axes[j, 1], q, eff_axis[e], qrot(inv_base, orient[i, e]))
+            if use_rot:
+                q = turn_onto_targets(i, j, q, inv_base, pos_j, eff_joint, world_pos, world_rot, rot_t, rot_w,
+                                      eff_move)
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
             local_rot[i, j] = q
         world_rot[i, j] = qmul(base_rot, q)
@@ -374,6 +390,11 @@ def fabrik_solve(
     tolerance: ti.f32,
     recover_each_iteration: ti.i32,
     use_orient: ti.i32,
+    rot_t: ndarray(dtype=vec4, ndim=2),
+    rot_w: ndarray(ndim=2),
+    eff_move: ndarray(dtype=ti.i32, ndim=2),
+    rotation_tolerance: ti.f32,
+    use_rot: ti.i32,
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
@@ -381,7 +402,9 @@ def fabrik_solve(
     """Solve every character (N = root_pos.shape[0]) in place: local_rot, world_pos and world_rot are updated.
 
     targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit directions or zero (read only
-    when use_orient is 1).
+    when use_orient is 1); rot_t (N, E, 4) x y z w rotation targets of the effector joints' world rotations,
+    rot_w (N, E) > 0 where one counts, eff_move (E, 2) each effector's moving joint and limb ball joint
+    (solvers/ccd.moving_joints), read only when use_rot is 1 (kernels/fabrik_rotation.py).
     Outputs: error (N,) final max effector distance, iterations (N,), stalled (N,) 1 if it stopped improving.
     recover_each_iteration 0 is for rigs without constraints (free ball joints, no orientation targets):
     on a chain the recovered rotations reproduce the FABRIK positions exactly, so recovering them once
@@ -394,15 +417,20 @@ def fabrik_solve(
         turn = 0.0
         if use_orient:
             turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+        rturn = 0.0
+        if use_rot:
+            rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
         it = 0
         flat = 0
         stop = 0
         done = 0
         while done == 0:
             # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
-            iterate = it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0
+            iterate = it < max_iterations and (err > tolerance or turn > 1e-6 or rturn > rotation_tolerance) \
+                and stop == 0
             if iterate:
-                backward_pass(i, parent, offset, eff_joint, targets, weights, world_pos, work, acc_w)
+                backward_pass(i, parent, offset, kind, eff_joint, targets, weights, local_rot, world_pos, work, acc_w,
+                              rot_t, rot_w, use_rot)
                 forward_pass(i, parent, offset, world_pos, work, acc_w)
                 if not recover_each_iteration:
                     for j in range(parent.shape[0]):
@@ -413,20 +441,26 @@ def fabrik_solve(
             if (iterate and recover_each_iteration) or (not iterate and not recover_each_iteration and it > 0):
                 recover_and_constrain(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
                                       child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
-                                      world_rot, weights, orient, work, acc_w, use_orient)
+                                      world_rot, weights, orient, work, acc_w, use_orient, rot_t, rot_w, eff_move,
+                                      use_rot)
             if iterate:
                 new_err = effector_error(i, eff_joint, targets, weights, world_pos)
                 new_turn = 0.0
                 if use_orient:
                     new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+                new_rturn = 0.0
+                if use_rot:
+                    new_rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
                 it += 1
                 # stalled: four updates in a row that improved neither error by one part in a million
-                if new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT):
+                if new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT) \
+                        and new_rturn >= rturn * (1.0 - FLAT):
                     flat += 1
                 else:
                     flat = 0
                 err = new_err
                 turn = new_turn
+                rturn = new_rturn
                 if flat >= STALL_AFTER:
                     stop = 1
             else:

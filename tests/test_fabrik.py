@@ -212,7 +212,8 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
             fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd),
                                 crowd.scratch("t_pos", crowd.ti.math.vec3, (n, rig.n_joints)),
                                 crowd.scratch("t_w", crowd.ti.f32, (n, rig.n_joints)), max_iterations, tolerance,
-                                0, 0, *bundles.result(crowd))
+                                0, 0, *bundles.rotation_goal(crowd), np.full((rig.n_effectors, 2), -1, np.int32),
+                                0.0, 0, *bundles.result(crowd))
 
         lane_packed = adapter._free
         for iterations in (2, 50):

@@ -14,6 +14,7 @@ from crowd_ik.geometry.quat import (
     swing, twist_angle, wrap_angle,
 )
 from crowd_ik.geometry.fk import yaw_quat
+from crowd_ik.reference import fabrik_rotation as rt
 from crowd_ik.rig import Rig
 
 # The solver's constants live in crowd_ik/solvers/settings.py, shared with kernels/fabrik.py.
@@ -34,7 +35,7 @@ def _turn(rig: Rig, wrot: np.ndarray, weights: np.ndarray, orient: np.ndarray) -
     return np.max(np.where(has, 1.0 - np.sum(axis * orient, -1), 0.0), axis=1)
 
 
-def _passes(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray):
+def _passes(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray, rot=None, rot_t=None, rot_w=None):
     N, J = pos.shape[:2]
     offset = rig.arrays["offset"].astype(np.float64)
     length = np.linalg.norm(offset, axis=1)
@@ -51,6 +52,8 @@ def _passes(rig: Rig, pos: np.ndarray, targets: np.ndarray, weights: np.ndarray)
         work[:, j] = np.where(on[:, None], pj, work[:, j])
         p = rig.joints[j].parent
         toward = safe_normalize(pos[:, p] - pj, -offset[j] / length[j])
+        if rot_t is not None:
+            toward = rt.extended_toward(rig, j, length[j], toward, rot, rot_t, rot_w)
         work[:, p] += np.where(on[:, None], w[:, None] * (pj + length[j] * toward), 0.0)
         acc[:, p] += np.where(on, w, 0.0)
     work[:, 0] = pos[:, 0]
@@ -202,7 +205,7 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
     return out, ok
 
 
-def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
+def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient, rot_goal=None):
     arr = rig.arrays
     offset = arr["offset"].astype(np.float64)
     lo_all, hi_all = arr["lo"].astype(np.float64), arr["hi"].astype(np.float64)
@@ -272,6 +275,8 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
                 aligned = align_axis(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                      arr["eff_axis"][e].astype(np.float64), qrot(inv_base, orient[:, e]))
                 q = np.where(has[:, None], aligned, q)
+            if rot_goal is not None:
+                q = rt.turn_onto_targets(rig, j, q, inv_base, pos_j, pos, wrot, *rot_goal)
             s = rig.dof_start[j]
             q = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                    lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
@@ -280,10 +285,12 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient):
 
 
 def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
-                 tolerance=1e-3):
+                 tolerance=1e-3, rotations=None, rotation_weights=None, rotation_tolerance=1e-2):
     """Solve N characters from local rotations rot (N, J, 4); returns (rot, pos, error, iterations, stalled).
 
-    root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world; weights (N, E); orientations (N, E, 3) or None.
+    root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world; weights (N, E); orientations (N, E, 3) or None;
+    rotations (N, E, 4) x y z w targets of the effector joints' world rotations or None, rotation_weights (N, E)
+    (default ones; 0: none).
     """
     from crowd_ik.geometry.fk import forward_kinematics
 
@@ -297,32 +304,46 @@ def fabrik_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orien
     pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
     err = _error(rig, pos, targets, weights)
     turn = _turn(rig, wrot, weights, orient)
-    deferred = rig.constraint_free and orientations is None
+    if rotations is not None:
+        from crowd_ik.solvers.ccd import moving_joints
+
+        rot_t = np.asarray(rotations, np.float64)
+        rot_w = (np.ones((N, E)) if rotation_weights is None
+                 else np.broadcast_to(np.asarray(rotation_weights, np.float64), (N, E)))
+        move = moving_joints(rig)
+        rturn = rt.rotation_error(rig, wrot, rot_t, rot_w)
+    else:
+        rturn = np.zeros(N)
+    deferred = rig.constraint_free and orientations is None and rotations is None
     last_work = np.zeros(pos.shape) if deferred else None
     last_acc = np.zeros(pos.shape[:2]) if deferred else None
     iters = np.zeros(N, np.int32)
     flat = np.zeros(N, np.int32)
     stalled = np.zeros(N, bool)
     for _ in range(max_iterations):
-        live = ((err > tolerance) | (turn > 1e-6)) & ~stalled
+        live = ((err > tolerance) | (turn > 1e-6) | (rturn > np.float32(rotation_tolerance))) & ~stalled
         if not np.any(live):
             break
         idx = np.nonzero(live)[0]
-        work, acc = _passes(rig, pos[idx], targets[idx], weights[idx])
         r, p, w = rot[idx], pos[idx], wrot[idx]
+        goal = None if rotations is None else (rot_t[idx], rot_w[idx], move)
+        work, acc = _passes(rig, p, targets[idx], weights[idx], *((r,) + goal[:2] if goal else ()))
         if deferred:  # as the kernel: a constraint-free rig recovers its rotations once, after the last iteration
             p = np.where((acc > 0)[..., None], work, p)
             last_work[idx], last_acc[idx] = work, acc
         else:
-            _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx])
+            _recover(rig, root_pos[idx], q_root[idx], r, p, w, work, acc, weights[idx], orient[idx], goal)
         rot[idx], pos[idx], wrot[idx] = r, p, w
         new_err = _error(rig, p, targets[idx], weights[idx])
         new_turn = _turn(rig, w, weights[idx], orient[idx])
+        new_rturn = np.zeros(len(idx)) if goal is None else rt.rotation_error(rig, w, goal[0], goal[1])
         iters[idx] += 1
-        flat_now = (new_err > err[idx] * (1 - FLAT)) & (new_turn >= turn[idx] * (1 - FLAT))
+        flat_now = ((new_err > err[idx] * (1 - FLAT)) & (new_turn >= turn[idx] * (1 - FLAT))
+                    & (new_rturn >= rturn[idx] * (1 - FLAT)))
         flat[idx] = np.where(flat_now, flat[idx] + 1, 0)
         err[idx] = new_err
         turn[idx] = new_turn
+        rturn[idx] = new_rturn
         stalled[idx] = flat[idx] >= STALL_AFTER
     if deferred and np.any(iters > 0):
         idx = np.nonzero(iters > 0)[0]

@@ -4,7 +4,8 @@ A constraint-free rig without orientation targets runs the lane kernels (kernels
 characters as SIMD lanes, then the rotations recovered in a second pass). With CROWD_IK_LIMITED_LANES=1 a
 joint-limited rig whose characters all weight the same effectors, without orientation, rotation or pole
 targets, runs kernels/fabrik_limited_lanes.py (settings.limited_lanes says why it is off by default);
-everything else, and CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py).
+everything else, and CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py), which also
+solves full rotation targets (kernels/fabrik_rotation.py).
 """
 
 from __future__ import annotations
@@ -12,13 +13,13 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.solvers import bundles, settings
-from crowd_ik.solvers.registry import CCD, DLS, FABRIK
+from crowd_ik.solvers.ccd import moving_joints
 
 
 def solve(crowd, req) -> None:
     if req.rotations is not None:
-        raise ValueError(f"rotations: full rotation targets are solved by method {DLS!r} or {CCD!r}, "
-                         f"not {FABRIK!r} yet")
+        _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1, req=req)
+        return
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
         _free(crowd, req.max_iterations, req.tolerance)
         return
@@ -72,17 +73,23 @@ def _limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -
     )
 
 
-def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteration: int) -> None:
+def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteration: int, req=None) -> None:
     """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
-    constraint-free rigs without orientation targets (the rotations of the final positions, once)."""
+    constraint-free rigs without orientation targets (the rotations of the final positions, once); req with
+    rotations: the full rotation targets (kernels/fabrik_rotation.py), else none."""
     from crowd_ik.kernels import fabrik
 
-    ti, J = crowd.ti, crowd.rig.n_joints
+    ti, J, E = crowd.ti, crowd.rig.n_joints, crowd.rig.n_effectors
     work = crowd.scratch("fabrik_pos", ti.math.vec3, (crowd.n, J))
     acc_w = crowd.scratch("fabrik_w", ti.f32, (crowd.n, J))
+    use_rot = int(req is not None and req.rotations is not None)
+    cache = crowd.__dict__.setdefault("_fabrik_eff_move", {})
+    if "move" not in cache:
+        cache["move"] = moving_joints(crowd.rig)
     fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w,
                         max_iterations, tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero),
-                        *bundles.result(crowd))
+                        *bundles.rotation_goal(crowd), cache["move"],
+                        req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd))
 
 
 def _free(crowd, max_iterations: int, tolerance: float) -> None:
