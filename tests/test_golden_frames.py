@@ -15,9 +15,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-GOLDEN = {  # both re-recorded for issue 14: the crowd walks, the autopilot player shoots, the camera follows
-    "duel": "10ed17bb6124a0e139e68f4cf619ef8aecbe90af59e3b5d5de2ae536c1fa25de",
-    "arena": "db49d5eb27ca0e518df9ff0dd3efb5802387fa0b241a90d83d9bd06e41e6a219",
+GOLDEN = {  # both re-recorded for issue 15: every humanoid's elbows have poles (out to the side, down/back)
+    "duel": "8e098fa4981af9af0c7e21224df074bb4e0b8abeb990943f0103eb2f459cf2c5",
+    "arena": "59fe65036d530025a70ce629716f587b2b2e36a35da2a7f1310b0798f89cff67",
 }
 
 

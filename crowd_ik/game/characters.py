@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from crowd_ik.game import streams
+from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.crowd_motion import CrowdMotion
 from crowd_ik.game.gait import Gait
@@ -114,6 +115,7 @@ class Characters:
         self.gait = Gait(b, self.ground, self.yaw) if b.humanoid else None
         names = b.rig.effector_names
         self._hand_eff = [names.index("hand_l"), names.index("hand_r")] if b.humanoid else []
+        self.arm_poles = ArmPoles(b, N) if b.humanoid else None  # elbows out and down (no knee poles: gait.plant)
 
     def walk(self, dt: float, obstacles: np.ndarray) -> None:
         """Move the standing bystanders' pelvises (obstacles (K, 2): the player's and the standing shooters'
@@ -222,8 +224,10 @@ class Characters:
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)
         sv = self.scene.solver
+        poles = None if self.arm_poles is None else self.arm_poles.update(roots, self.yaw, self.alive)
         self.last_report = self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations,
-                                            tolerance=sv.tolerance, weights=weights, orientations=self._orient)
+                                            tolerance=sv.tolerance, weights=weights, orientations=self._orient,
+                                            poles=poles)
         if self.gait is not None:
             self.gait.plant(self.crowd, self.planted, self.yaw, self.alive)
         ms = 1e3 * (time.perf_counter() - t0)

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from crowd_ik.game.aim import ballistic_direction
+from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.gait import leg_joints, plant_legs
 from crowd_ik.geometry.vectors import yaw_rotate
@@ -217,6 +218,7 @@ class Player:
         self._orient = body.orient[None].copy()
         self.joints = np.zeros((body.rig.n_joints, 3), np.float32)  # (J, 3) after the last update
         self._legs = leg_joints(body.rig)
+        self._arm_poles = ArmPoles(body, 1)  # elbows out and down (knees: plant_legs)
 
     def update(self, dt: float) -> None:
         """Walk dt seconds of real time (dt = 0: stand where the walker is) and solve the pose."""
@@ -229,13 +231,14 @@ class Player:
             targets = b.rest_targets((root * [1.0, 0.0, 1.0])[None].astype(np.float32), np.array([yaw], np.float32))[0]
             speed = 0.0
         self.speed = speed
-        self.crowd.set_roots(np.asarray(root, np.float32)[None], np.array([yaw], np.float32))
+        root1, yaw1 = np.asarray(root, np.float32)[None], np.array([yaw], np.float32)
+        self.crowd.set_roots(root1, yaw1)
         sv = self.solver
         iterations = sv.iterations if dt > 0.0 else max(sv.iterations, 50)
         self.crowd.solve(targets[None], method=sv.method, max_iterations=iterations, tolerance=sv.tolerance,
-                         orientations=self._orient)
+                         orientations=self._orient, poles=self._arm_poles.update(root1, yaw1))
         # the feet exactly on the walker's footprints (game.gait): planted feet do not slide
-        plant_legs(self.crowd, self._legs, targets[None, b.planted], np.array([yaw], np.float32), np.ones(1, np.int32))
+        plant_legs(self.crowd, self._legs, targets[None, b.planted], yaw1, np.ones(1, np.int32))
         self.joints = self.crowd.joint_positions()[0].astype(np.float32)
 
     def steer(self, move, aim=None) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from crowd_ik.game import streams
 from crowd_ik.game.aim import ballistic_direction, cone_sample
+from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import shooter_layout
@@ -59,6 +60,7 @@ class Shooters:
         self.aim_joint = np.zeros(S, np.intp)
         self.aim = np.zeros((S, 3), np.float32)
         self.gait = Gait(hb, self.ground, self.yaw)
+        self.arm_poles = ArmPoles(hb, S)  # elbows out and down; downed shooters get none (they keep their pose)
 
     @property
     def down(self) -> int:
@@ -143,7 +145,8 @@ class Shooters:
         self.crowd.set_roots(self.roots, self.yaw)
         sv = self.scene.solver
         self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
-                         weights=self._weights, orientations=self._orient)
+                         weights=self._weights, orientations=self._orient,
+                         poles=self.arm_poles.update(self.roots, self.yaw, up))
         self.gait.plant(self.crowd, feet, self.yaw, up)
         self.joints = self.crowd.joint_positions().astype(np.float32)
         return 1e3 * (time.perf_counter() - t0)

@@ -31,11 +31,11 @@ def apply(crowd, req) -> None:
     from crowd_ik.kernels import poles
 
     ra, ti, E, N = crowd.rig_arrays, crowd.ti, crowd.rig.n_effectors, crowd.n
-    bend, pivot = pole_joints(crowd.rig)
-    arrays = {}
-    for name, value in (("bend", bend), ("pivot", pivot)):
-        arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, (E,))
-        arrays[name].from_numpy(value)
+    arrays = {name: crowd._scratch.get(f"pole_{name}") for name in ("bend", "pivot")}
+    if arrays["bend"] is None or arrays["pivot"] is None:  # the rig's limbs, uploaded once per crowd
+        for name, value in zip(("bend", "pivot"), pole_joints(crowd.rig)):
+            arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, (E,))
+            arrays[name].from_numpy(value)
     b = crowd.buffers
     poles.pole_swivel(
         ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
