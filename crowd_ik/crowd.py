@@ -145,11 +145,7 @@ class Crowd:
         yaw_arr = np.zeros(self.n, np.float32) if yaw is None else _as_array(yaw, "yaw", (self.n,))
         np.copyto(self.root_pos, full)
         np.copyto(self.root_yaw, yaw_arr)
-        # host copy of the root joints' world positions (they never move in a solve): the UNREACHABLE test
-        off = self.rig.arrays["offset"][0].astype(np.float64)
-        c, s = np.cos(yaw_arr), np.sin(yaw_arr)
-        self._base = (full + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]), -s * off[0] + c * off[2]],
-                                      -1)).astype(np.float32)
+        self._set_base()
         # FK of the characters whose root moved or turned (the others' world pose already follows their
         # rotations: every solver and setter keeps it so); in the game a step moves a few percent of them
         moved = None
@@ -160,6 +156,19 @@ class Crowd:
             self._fk()
         elif moved.size:
             self._fk(moved.astype(np.int32))
+
+    def _set_base(self) -> None:
+        """Host copy of the root joints' world positions (they move in a solve only with root_weight): the
+        UNREACHABLE test and the free root's sub-base rule read it."""
+        off = self.rig.arrays["offset"][0].astype(np.float64)
+        c, s = np.cos(self.root_yaw), np.sin(self.root_yaw)
+        self._base = (self.root_pos + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]),
+                                                -s * off[0] + c * off[2]], -1)).astype(np.float32)
+
+    def _roots_moved(self) -> None:
+        """After a solve moved root_pos in place (root_weight): what set_roots derives from the roots."""
+        self._set_base()
+        self._roots_host = self.root_pos.copy()
 
     def set_angles(self, a) -> None:
         """Set every joint angle: a (N, DOF) or (DOF,) radians; zeros = the rest pose."""
@@ -243,7 +252,8 @@ class Crowd:
     def solve(self, targets, method: str = DEFAULT_METHOD, max_iterations: int = 20, tolerance: float = 1e-3,
               weights=None, orientations=None, rest_weight: float = 0.0, velocity_weight: float = 0.0,
               damping=None, joint_weights=None, balance_weight: float = 0.0, poles=None,
-              rotation_tolerance: float = 1e-2, rotations=None, rotation_weights=None) -> SolveReport:
+              rotation_tolerance: float = 1e-2, rotations=None, rotation_weights=None,
+              root_weight=None) -> SolveReport:
         """Move every character's effectors toward ``targets`` (N, E, dim) world; warm-starts from the current pose.
 
         weights (E,) or (N, E) >= 0; orientations (N, E, 3) world directions for the effectors' local
@@ -263,18 +273,42 @@ class Crowd:
         rotations (N, E, 4) unit quaternions x y z w (a row of NaN: none; 3D rigs): rotations[n, e] is the target
         of world_rotations()[n, eff_joint[e]], weighted by rotation_weights (E,) or (N, E) >= 0 (default ones)
         apart from the positions; report.rotation_error counts 2 acos |<q, q_target>| for them.
+
+        rest_weight, velocity_weight and balance_weight act in the null space of the targets (task priority):
+        they choose among the poses that reach the targets and never hold a reachable target off.
+
+        root_weight None (default): the roots stay. A number w > 0 frees each root's translation (the first dim
+        components), and roots() returns where the solve moved them; no character is then UNREACHABLE. DLS
+        solves it as 3 more unknowns weighted w like joint_weights (bigger moves more); FABRIK and CCD first
+        move the root by the sub-base rule of kernels/root_shift.py (by min(w, 1) x the weighted mean of how
+        far targets lie beyond their chains' reach), then solve from there with it fixed.
         """
         req = check_request(self.rig, self.n, targets, method, max_iterations, tolerance, weights, orientations,
                             rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles,
                             rotation_tolerance=rotation_tolerance, rotations=rotations,
-                            rotation_weights=rotation_weights)
+                            rotation_weights=rotation_weights, root_weight=root_weight)
         if req.poles is not None and self.dim == 2:
             raise ValueError("poles: a planar (dim=2) rig bends in its plane; poles need a 3D rig")
         self.buffers.load(req)
+        if req.root_weight is not None and req.method != DLS:
+            self._shift_roots(req)
         SOLVERS[req.method](self, req)
+        if req.root_weight is not None:
+            self._roots_moved()
         if req.poles is not None:
             pole_hints.apply(self, req)
         return self._report(req)
+
+    def _shift_roots(self, req: SolveRequest) -> None:
+        """FABRIK's and CCD's free root: kernels/root_shift.py moves root_pos, then FK follows."""
+        from crowd_ik.kernels import root_shift
+
+        reach = self.scratch("root_reach", self.ti.f32, (self.rig.n_effectors,))
+        reach.from_numpy(np.asarray(self.rig.reach, np.float32))
+        root_shift.shift_roots(reach, self.root_pos, self._base, self.buffers.targets, self.buffers.weights,
+                               min(req.root_weight, 1.0), self.dim)
+        self._roots_moved()
+        self._fk()
 
     def _report(self, req: SolveRequest) -> SolveReport:
         b = self.buffers
@@ -287,6 +321,8 @@ class Crowd:
         left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         d = b.targets[left] - self._base[left, None, :]
         far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
+        if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
+            far[:] = False
         status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
                                 np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
         return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)

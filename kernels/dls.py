@@ -15,28 +15,40 @@ transpose, pseudoinverse and damped least squares"; Buss & Kim 2005 for the erro
    other ball joint moves by a world-axis rotation vector w (the quaternion Jacobian) applied as
    q <- exp(R_p^-1 w) q, R_p its parent's world rotation, which turns the subtree by exp(w) about
    the joint and keeps q unit (no gimbal lock).
-3. The step minimises |J d - e|^2 + sum_d (lam^2 / w_d) d_d^2 + alpha |rho + d|^2 + beta |nu + d|^2
-   (rho: offset from rest, nu: offset from the solve's start pose, w_d joint weights), i.e.
-   d = M g + M' J^T (J M' J^T + lam^2 I)^-1 (e - J M g), m'_d = w_d lam^2 / (lam^2 + w_d (alpha + beta)),
-   m_d = m'_d / lam^2, g = -(alpha rho + beta nu). Without alpha and beta this is Buss's weighted
-   DLS d = W J^T (J W J^T + lam^2 I)^-1 e. The R x R system (R <= 3E + 2 per effector with an
-   axis) is solved by a Cholesky factorisation in a per-character scratch array (no local matrices).
+3. The step is Buss's weighted DLS d = W J^T (J W J^T + lam^2 I)^-1 e (w_d joint weights). The secondary
+   terms, alpha |rho|^2 (rho: offset from rest), beta |nu|^2 (nu: offset from the solve's start pose) and
+   balance (7.), act in the null space of the targets' rows (task priority, Siciliano & Slotine 1991; the
+   gradient projection of Liegeois 1977, d = J^+ e + (I - J^+ J) z, with damped pseudo-inverses):
+   z minimises the balance rows projected into that null space plus lam^2 z^T W^-1 z + alpha |rho + z|^2
+   + beta |nu + z|^2 (so z = M g, m_d = w_d / (lam^2 + w_d (alpha + beta)), g = -(alpha rho + beta nu),
+   without balance), z is scaled to at most NULL_STEP * damping / lam per column, and d = d1 + N1 z, N1
+   the projector onto that null space (damped by DAMPING_MIN L only; kernels/dls_system.solve_step). They shape the pose among the solutions and never hold a reachable
+   target off. The R x R system (R <= 3E + 2 per effector with an axis) is solved by a Cholesky
+   factorisation in a per-character scratch array (no local matrices).
 4. Active set: a DOF at a limit whose step points outward is frozen (m = 0) and the system solved
    again; every attempt starts with all DOFs free, so a DOF is released when its step points inward.
 5. Levenberg-Marquardt: the step is taken (angles clamped to their limits, cones projected) and
-   kept only if the objective F (weighted squared errors + alpha |rho|^2 + beta |nu|^2) drops; lam
-   then halves toward `damping`. A rejected step restores the pose and lam grows x4.
+   kept only if the objective F (the targets' weighted squared errors) drops, or, with secondary terms,
+   if their sum S (alpha |rho|^2 + beta |nu|^2 + balance) drops while every target error stays within
+   NULL_BAND x tolerance; lam then halves toward `damping`. A rejected step restores the pose and lam
+   grows x4.
 6. Escape: a limb straight on its limit (a knee or elbow at 0) is a saddle of F that first-order
    steps cannot leave. When a character stalls, its DOFs frozen on a limit are kicked KICK inward
    and it gets ESCAPE_ATTEMPTS attempts to beat the pose before the kick; otherwise that pose comes
-   back. So F never rises between the poses a solve can end in.
+   back. So F never rises between the poses a solve can end in, except within the band of 5.
 
 7. Static balance (balance_weight beta_b > 0; crowd_ik/reference/dls.py defines the centre of mass c
    and the support point s, both weighted sums of joint positions): 2 more rows, sqrt(beta_b) times
-   the x and z rows of d(c - s)/dq aiming at -(c - s)_xz, and beta_b |(c - s)_xz|^2 in F. A DOF with
+   the x and z rows of d(c - s)/dq aiming at -(c - s)_xz (a secondary task, 3.), and beta_b |(c - s)_xz|^2
+   in S. A DOF with
    world axis w at joint n has the column w x sum_j a_j (p_j - p_n) over the weighted points j below
    n (bone midpoints, minus the feet), summed once per build in qwork[i, Q_COM] by a pass from the
    leaves up.
+
+8. A free root (extra bit 4, Crowd.solve(root_weight=w)): the root's translation is 3 more unknowns, the
+   last columns of work, jac (identity in every effector position row, zero in orientation, rotation and
+   balance rows, as the whole body translates), weighted w like a joint weight; F then counts |t - p|^2 for
+   every target (none is out of reach), and root_pos is written back.
 
 A character stops when every active position error, every scaled orientation error and the balance
 error |(c - s)_xz| are <= tolerance. It is stalled after STALL_AFTER rejected or flat (gain < FLAT * F)
@@ -52,13 +64,14 @@ from crowd_ik.kernels.quat import (
     vec3, vec4,
 )
 from crowd_ik.solvers.settings import (
-    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
-    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_PROGRESS as PROGRESS, DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
+    DLS_DAMPING_MIN as DAMPING_MIN, DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
+    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_NULL_BAND as NULL_BAND,
+    DLS_NULL_STEP as NULL_STEP, DLS_PROGRESS as PROGRESS, DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
 )
 
 from crowd_ik.kernels.dls_pose import (
     FREE, N_DOF_SLOTS, N_Q_SLOTS, Q_BAK, Q_SAVE, Q_START, STEP, THETA, THETA0, THETA_BAK, THETA_SAVE,  # noqa: F401
-    first_bone, fk_relative, parent_rot, qexp, read_angles,
+    first_bone, fk_relative, parent_rot, qexp, read_angles, root_point, vec5,
 )
 from crowd_ik.kernels.dls_system import build_system, objective, solve_step
 
@@ -91,13 +104,16 @@ def apply_step(i, parent: ti.template(), offset: ti.template(), kind: ti.templat
                axes: ti.template(), lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
                dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(), root_yaw: ti.template(),
                local_rot: ti.template(), rel_pos: ti.template(), world_rot: ti.template(), work: ti.template(),
-               qwork: ti.template()):
+               qwork: ti.template(), extra: ti.template()):
     """Back up the pose, add work[i, STEP] (angles clamped to their limits, cones projected), and run FK.
 
     With a zero step this projects a start pose onto the joints' DOFs and limits.
     """
     for d in range(work.shape[2]):
         work[i, THETA_BAK, d] = work[i, THETA, d]
+    if ti.static(extra & 4):  # the root's translation
+        for c in ti.static(range(3)):
+            work[i, THETA, work.shape[2] - 3 + c] += work[i, STEP, work.shape[2] - 3 + c]
     for j in range(parent.shape[0]):
         qwork[i, Q_BAK, j] = local_rot[i, j]
         k = kind[j]
@@ -234,15 +250,21 @@ def dls_solve(
     m^2/rad^2; bal_w (dimensionless) weighs the squared balance error in m^2. Outputs:
     error (N,) final max effector distance, iterations (N,) accepted steps, stalled (N,) 1 if LM
     could make no more progress. jmode, lo, hi, eff_lim: crowd_ik.solvers.dls_setup.dls_settings.
-    extra (compile time, 0 = the plain kernel): bit 1 full rotation targets rot_t (N, E, 4) x y z w of the
+    extra (compile time, 0 = the plain kernel): bit 2 the secondary terms (set iff rest_w, vel_w or bal_w > 0)
+    in the null space of the targets; bit 4 a free root (work, jac have 3 more columns, the last, joint_w its
+    weights there; root_pos is moved in place); bit 1 full rotation targets rot_t (N, E, 4) x y z w of the
     effector joints' world rotations, weighted by rot_w (N, E) (0: none), 3 rows each (R grows by 3 per
     effector); with extra 0 rot_t and rot_w are not read.
     """
     for i in range(root_pos.shape[0]):
         read_angles(i, parent, kind, jmode, axes, dof_start, local_rot, work)
         D = work.shape[2]
+        mu2 = (DAMPING_MIN * length) * (DAMPING_MIN * length)  # the null-space projector's damping
+        Rb = 0  # balance rows, last
+        if bal_w > 0.0:
+            Rb = 2
         max_attempts = 2 * max_iterations + 8
-        obj = vec3(0.0)
+        obj = vec5(0.0)
         lam = damping
         accepted = 0
         attempts = 0
@@ -254,15 +276,16 @@ def dls_solve(
         esc = 0  # on probation after a kick
         esc_left = 0
         escapes = 0
-        saved_obj = vec3(0.0)
+        saved_obj = vec5(0.0)
         saved_accepted = 0
         ref_f = 0.0
+        ref_s = 0.0
         ref_accepted = 0
         go = 1
         while go == 1:
             # one call site per phase (every ti.func is inlined: fewer sites, faster compiles)
             apply_step(i, parent, offset, kind, jmode, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
-                       root_yaw, local_rot, rel_pos, world_rot, work, qwork)
+                       root_yaw, local_rot, rel_pos, world_rot, work, qwork, extra)
             if first == 1:  # the projected start pose is the reference of the velocity term
                 copy_pose(i, THETA, THETA0, -1, Q_START, parent, local_rot, work, qwork)
             new = objective(i, parent, kind, jmode, dof_start, eff_joint, eff_axis, eff_has_axis, eff_lim, root_pos,
@@ -272,6 +295,7 @@ def dls_solve(
             if first == 1:
                 obj = new
                 ref_f = obj[0]
+                ref_s = obj[3]
                 first = 0
             elif kick == 1:
                 obj = new
@@ -282,20 +306,32 @@ def dls_solve(
                 esc = 1
                 esc_left = ESCAPE_ATTEMPTS
                 ref_f = obj[0]
+                ref_s = obj[3]
                 ref_accepted = accepted
             else:
-                if new[0] < obj[0] and failed == 0:
-                    if obj[0] - new[0] < FLAT * obj[0]:
+                better = new[0] < obj[0]
+                flat = obj[0] - new[0] < FLAT * obj[0]
+                if ti.static(extra & 2):
+                    # secondary terms: also taken when S falls while every target error stays in the band
+                    band = NULL_BAND * tolerance
+                    better = better or (new[3] < obj[3] and new[1] <= band and new[4] <= band)
+                    flat = flat and obj[3] - new[3] < FLAT * obj[3]
+                if better and failed == 0:
+                    if flat:
                         bad += 1
                     else:
                         bad = 0
                     obj = new
                     accepted += 1
                     lam = ti.max(0.5 * lam, damping)
-                    if accepted - ref_accepted >= WINDOW:  # too slow: F fell by less than PROGRESS
-                        if obj[0] > (1.0 - PROGRESS) * ref_f:
+                    if accepted - ref_accepted >= WINDOW:  # too slow: F (and S) fell by less than PROGRESS
+                        slow = obj[0] > (1.0 - PROGRESS) * ref_f
+                        if ti.static(extra & 2):
+                            slow = slow and obj[3] >= (1.0 - PROGRESS) * ref_s
+                        if slow:
                             bad = STALL_AFTER
                         ref_f = obj[0]
+                        ref_s = obj[3]
                         ref_accepted = accepted
                 else:
                     copy_pose(i, THETA_BAK, THETA, Q_BAK, -1, parent, local_rot, work, qwork)
@@ -337,6 +373,7 @@ def dls_solve(
                 accepted = saved_accepted
                 esc = 0
                 ref_f = obj[0]
+                ref_s = obj[3]
                 ref_accepted = accepted
             if need_fk == 1:
                 fk_relative(i, parent, offset, root_yaw, local_rot, rel_pos, world_rot)
@@ -355,14 +392,18 @@ def dls_solve(
                     rounds = 0
                     frozen = 1
                     while frozen > 0 and rounds <= D:
-                        failed = 1 - solve_step(i, R, lam * lam, rest_w, vel_w, joint_w, jac, rows, sys, work)
+                        failed = 1 - solve_step(i, R, Rb, lam * lam, mu2, NULL_STEP * damping / lam, rest_w,
+                                                vel_w, joint_w, jac, rows, sys, work, extra)
                         frozen = freeze_outward(i, parent, kind, jmode, lo, hi, dof_start, work)
                         rounds += 1
                     if failed == 1:
                         for d in range(D):
                             work[i, STEP, d] = 0.0
+        rp = root_point(i, root_pos, work, extra)
         for j in range(parent.shape[0]):
-            world_pos[i, j] = root_pos[i] + rel_pos[i, j]
+            world_pos[i, j] = rp + rel_pos[i, j]
+        if ti.static(extra & 4):
+            root_pos[i] = rp
         error[i] = obj[1]
         iterations[i] = accepted
         stalled[i] = stop

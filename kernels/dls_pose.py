@@ -10,10 +10,14 @@ from crowd_ik.kernels.quat import (
 ndarray = ti.types.ndarray
 
 # Slots of the per-DOF scratch work[i, slot, d] and of the per-joint quaternion scratch qwork[i, slot, j].
-THETA, THETA_BAK, THETA0, MP, MG, STEP, FREE, G, THETA_SAVE = 0, 1, 2, 3, 4, 5, 6, 7, 8
+# Z, HB0, HB1: the null-space rule's secondary step and its two projected balance rows (kernels/dls_system.py).
+# With a free root (extra bit 4) the last 3 columns of work are the root's translation from where the solve
+# started (THETA) and its step (STEP), after the DOFs and one padding column.
+THETA, THETA_BAK, THETA0, MP, MG, STEP, FREE, G, THETA_SAVE, Z, HB0, HB1 = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11
 Q_BAK, Q_START, Q_SAVE, Q_COM = 0, 1, 2, 3
-N_DOF_SLOTS = 9
+N_DOF_SLOTS = 12
 N_Q_SLOTS = 4
+vec5 = ti.types.vector(5, ti.f32)
 
 
 @ti.func
@@ -116,3 +120,13 @@ def read_angles(i, parent: ti.template(), kind: ti.template(), jmode: ti.templat
 @ti.func
 def has_orientation(i, e, eff_has_axis: ti.template(), orient: ti.template()):
     return eff_has_axis[e] != 0 and orient[i, e].norm_sqr() > 0.0
+
+
+@ti.func
+def root_point(i, root_pos: ti.template(), work: ti.template(), extra: ti.template()):
+    """Character i's root point: root_pos, plus its translation so far when the root is free (extra bit 4)."""
+    out = root_pos[i]
+    if ti.static(extra & 4):
+        c0 = work.shape[2] - 3
+        out += vec3(work[i, THETA, c0], work[i, THETA, c0 + 1], work[i, THETA, c0 + 2])
+    return out

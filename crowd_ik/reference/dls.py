@@ -29,9 +29,9 @@ from crowd_ik.rig import Rig
 from crowd_ik.solvers.dls_setup import balance_weights, dls_settings  # noqa: F401  (the tests' too)
 # The solver's constants live in crowd_ik/solvers/settings.py, shared with kernels/dls.py.
 from crowd_ik.solvers.settings import (
-    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
-    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_PROGRESS as PROGRESS,
-    DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
+    DLS_DAMPING_MIN as DAMPING_MIN, DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
+    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_NULL_BAND as NULL_BAND,
+    DLS_NULL_STEP as NULL_STEP, DLS_PROGRESS as PROGRESS, DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
 )
 
 
@@ -55,6 +55,8 @@ def _apply(R: _Rig, st, step):
     theta = st["theta"] + 0.0
     rot = st["rot"].copy()
     q_root = _yaw(st["yaw"])
+    if R.root:  # the root's translation
+        theta[:, R.rig.n_dof :] += step[:, R.rig.n_dof :]
     for j, jt in enumerate(R.joints):
         k, s = jt["k"], jt["s"]
         if k == 0:
@@ -94,8 +96,10 @@ def _kick(R: _Rig, theta, free, joint_w):
 
 def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientations=None, max_iterations=20,
               tolerance=1e-3, damping=None, rest_weight=0.0, velocity_weight=0.0, joint_weights=None,
-              balance_weight=0.0, rotations=None, rotation_weights=None):
-    """Solve N characters from local rotations rot (N, J, 4); returns (rot, world_pos, error, iterations, stalled).
+              balance_weight=0.0, rotations=None, rotation_weights=None, root_weight=None):
+    """Solve N characters from local rotations rot (N, J, 4); returns (rot, world_pos, error, iterations, stalled),
+    and with root_weight (a free root, weighted like a joint; dim components of a planar rig) the moved roots
+    (N, 3) as a sixth item.
 
     root_pos (N, 3), root_yaw (N,), targets (N, E, 3) world metres; weights (N, E) (default ones);
     orientations (N, E, 3) unit directions or zero; joint_weights (D,) (default ones). The other
@@ -107,15 +111,19 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     """
     joint_w = np.ones(rig.n_dof) if joint_weights is None else np.asarray(joint_weights, np.float64)
     settings = dls_settings(rig, damping, joint_w)
-    R = _Rig(rig, settings)
+    R = _Rig(rig, settings, root=root_weight is not None)
+    if R.root:
+        joint_w = np.concatenate([joint_w, np.where(np.arange(3) < rig.dim, float(root_weight), 0.0)])
     root_pos = np.asarray(root_pos, np.float64)
-    N, E, D = root_pos.shape[0], rig.n_effectors, rig.n_dof
+    N, E, D = root_pos.shape[0], rig.n_effectors, R.n_col
     yaw = np.asarray(root_yaw, np.float64)
     tgt = np.asarray(targets, np.float64) - root_pos[:, None, :]
     weights = np.ones((N, E)) if weights is None else np.broadcast_to(np.asarray(weights, np.float64), (N, E))
     orient = np.zeros((N, E, 3)) if orientations is None else np.asarray(orientations, np.float64)
     length, lam0, eff_lim = settings["length"], settings["damping"], settings["eff_lim"].astype(np.float64)
     rest_w, vel_w, bal_w = float(rest_weight), float(velocity_weight), float(balance_weight)
+    null = rest_w > 0 or vel_w > 0 or bal_w > 0  # the secondary terms in the null space of the targets
+    band = NULL_BAND * tolerance
     if bal_w > 0 and not settings["has_feet"]:
         raise ValueError("balance_weight: the rig has no foot effectors")
     rot_t = rot_w = None
@@ -138,9 +146,9 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     # the first pass applies a zero step: the start pose projected onto the DOFs and limits
     st = _apply(R, dict(theta=theta, theta0=theta, rot=rot, q0=rot, pos=pos, wrot=wrot, yaw=yaw), np.zeros((N, D)))
     st["theta0"], st["q0"] = st["theta"].copy(), st["rot"].copy()
-    # (N, 3): F, max position error, max(orientation error * L, balance error)
+    # (N, 5): F, max position error, max(orientation error * L, balance error), S, orientation error * L
     obj = np.stack(_objective(R, st, *obj_args, *rot_of(slice(None))), axis=1)
-    ref_f, ref_acc = obj[:, 0].copy(), np.zeros(N, np.int32)
+    ref_f, ref_s, ref_acc = obj[:, 0].copy(), obj[:, 3].copy(), np.zeros(N, np.int32)
     lam = np.full(N, lam0)
     accepted = np.zeros(N, np.int32)
     attempts = np.zeros(N, np.int32)
@@ -161,7 +169,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         st["pos"][ids], st["wrot"][ids] = _fk(rig, yaw[ids], st["rot"][ids])
         obj[ids], accepted[ids] = saved["obj"][ids], saved["accepted"][ids]
         esc[ids] = False
-        ref_f[ids], ref_acc[ids] = obj[ids, 0], accepted[ids]
+        ref_f[ids], ref_s[ids], ref_acc[ids] = obj[ids, 0], obj[ids, 3], accepted[ids]
 
     def plan(ids):
         """Next step of the characters ids: an escape kick, or the LM step with the active set."""
@@ -176,13 +184,17 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
                              *rot_of(m))
         fr = np.ones((m.size, D))
         lam2 = lam[m] ** 2
-        stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w)
+        sec = dict(bal_row=5 * E if bal_w > 0 else None, zmax=NULL_STEP * lam0 / lam[m],
+                   mu2=(DAMPING_MIN * length) ** 2) if null else {}
+        stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w, **sec)
         for _ in range(D + 1):
             changed = _freeze(R, sub["theta"], stp, fr)
             if not changed.any():
                 break
             c = np.flatnonzero(changed)
-            stp[c] = _solve(jac[c], err[c], g[c], lam2[c], fr[c], joint_w, rest_w, vel_w)
+            if null:
+                sec["zmax"] = NULL_STEP * lam0 / lam[m[c]]
+            stp[c] = _solve(jac[c], err[c], g[c], lam2[c], fr[c], joint_w, rest_w, vel_w, **sec)
         step[m], free[m] = stp, fr
 
     def decide(ids):
@@ -217,8 +229,13 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         new = np.stack(_objective(R, trial, tgt[idx], weights[idx], orient[idx], *obj_args[3:], *rot_of(idx)),
                        axis=1)
         kicked = kick[idx]
-        better = kicked | (new[:, 0] < obj[idx, 0])
-        flat = ~kicked & better & (obj[idx, 0] - new[:, 0] < FLAT * obj[idx, 0])
+        better = new[:, 0] < obj[idx, 0]
+        flat = obj[idx, 0] - new[:, 0] < FLAT * obj[idx, 0]
+        if null:  # also taken when S falls while every target error stays in the band
+            better |= (new[:, 3] < obj[idx, 3]) & (new[:, 1] <= band) & (new[:, 4] <= band)
+            flat &= obj[idx, 3] - new[:, 3] < FLAT * obj[idx, 3]
+        better |= kicked
+        flat &= ~kicked & better
         acc = idx[better]
         for key in ("theta", "rot", "pos", "wrot"):
             st[key][acc] = trial[key][better]
@@ -231,18 +248,23 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         # too slow: F fell by less than PROGRESS over the last WINDOW accepted steps
         plain = idx[better & ~kicked]
         due = plain[accepted[plain] - ref_acc[plain] >= WINDOW]
-        slow = due[obj[due, 0] > (1.0 - PROGRESS) * ref_f[due]]
-        bad[slow] = STALL_AFTER
-        ref_f[due], ref_acc[due] = obj[due, 0], accepted[due]
-        ref_f[idx[kicked]], ref_acc[idx[kicked]] = obj[idx[kicked], 0], accepted[idx[kicked]]
+        slow = obj[due, 0] > (1.0 - PROGRESS) * ref_f[due]
+        if null:
+            slow &= obj[due, 3] >= (1.0 - PROGRESS) * ref_s[due]
+        bad[due[slow]] = STALL_AFTER
+        ref_f[due], ref_s[due], ref_acc[due] = obj[due, 0], obj[due, 3], accepted[due]
+        k = idx[kicked]
+        ref_f[k], ref_s[k], ref_acc[k] = obj[k, 0], obj[k, 3], accepted[k]
         # on probation: kept once it beats the pose before the kick (or converges)
         probe = idx[esc[idx] & ~kicked]
         conv = (obj[probe, 1] <= tolerance) & (obj[probe, 2] <= tolerance)
         esc[probe[(obj[probe, 0] < saved["obj"][probe, 0]) | conv]] = False
         esc_left[probe] -= 1
         decide(idx)
-    world_pos = st["pos"] + root_pos[:, None, :]
-    return st["rot"], world_pos, obj[:, 1].copy(), accepted, stop.astype(np.int32)
+    roots = root_pos + (st["theta"][:, rig.n_dof :] if R.root else 0.0)
+    world_pos = st["pos"] + roots[:, None, :]
+    out = st["rot"], world_pos, obj[:, 1].copy(), accepted, stop.astype(np.int32)
+    return out + (roots,) if R.root else out
 
 
 def balance_rows(rig: Rig, root_yaw, rot, balance_weight: float = 1.0, joint_weights=None):

@@ -60,8 +60,11 @@ def swing_vector(a: np.ndarray, t: np.ndarray) -> np.ndarray:
 class _Rig:
     """Per-joint facts the solver loops over."""
 
-    def __init__(self, rig: Rig, settings: dict):
+    def __init__(self, rig: Rig, settings: dict, root: bool = False):
         self.rig = rig
+        # a free root: 3 more columns after the DOFs (theta holds the root's translation there)
+        self.root = root
+        self.n_col = rig.n_dof + (3 if root else 0)
         jmode, lo, hi = settings["jmode"], settings["lo"], settings["hi"]
         self.com_w, self.support_w = settings["com_w"], settings["support_w"]
         self.parent = np.array([j.parent for j in rig.joints])
@@ -125,14 +128,23 @@ def _rotation_vector(rot_t, q):
     return qlog(qmul(rot_t, qconj(q)))
 
 
-def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0, rot_t=None, rot_w=None):
-    """(F, max position error, max(orientation error * L, balance error)); F's position terms as in the kernel.
+def _root_shift(R: _Rig, st):
+    """(n, 3) the free root's translation so far (zeros for a fixed root)."""
+    return st["theta"][:, R.rig.n_dof :] if R.root else np.zeros((st["theta"].shape[0], 3))
 
-    rot_t (n, E, 4), rot_w (n, E) or None: full rotation targets, each adding rot_w (L angle)^2 to F and
-    L angle to the orientation error."""
+
+def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, bal_w=0.0, rot_t=None, rot_w=None):
+    """(F, max position error, max(orientation error * L, balance error), S, orientation error * L), as the kernel.
+
+    F: the targets (position terms as in the kernel; with a free root |t - p|^2 for every target); S the
+    secondary terms (rest, velocity, balance). rot_t (n, E, 4), rot_w (n, E) or None: full rotation targets,
+    each adding rot_w (L angle)^2 to F and L angle to the orientation error."""
     rig = R.rig
     n = tgt.shape[0]
+    tgt = tgt - _root_shift(R, st)[:, None]
     f = np.zeros(n)
+    sec = np.zeros(n)
+    berr = np.zeros(n)
     perr = np.zeros(n)
     oerr = np.zeros(n)
     eff_axis = rig.arrays["eff_axis"].astype(np.float64)
@@ -147,7 +159,7 @@ def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w
         q = st["pos"][:, eff.joint] - st["pos"][:, 0]
         qn = np.linalg.norm(q, axis=-1)
         far = 2.0 * (dist * reach - np.sum(r * q, -1)) - (reach - qn) * (reach + qn)
-        f += np.where(on, w * np.where(dist > reach, far, dd), 0.0)
+        f += np.where(on, w * np.where((dist > reach) & (not R.root), far, dd), 0.0)
         perr = np.where(on, np.maximum(perr, np.sqrt(dd)), perr)
         has = on & (eff.axis is not None) & (np.sum(orient[:, e] ** 2, -1) > 0)
         if np.any(has):
@@ -168,16 +180,17 @@ def _objective(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w
             if jt["angle"]:
                 th = st["theta"][:, s : s + k]
                 dv = th - st["theta0"][:, s : s + k]
-                f += rest_w * np.sum(th * th, -1) + vel_w * np.sum(dv * dv, -1)
+                sec += rest_w * np.sum(th * th, -1) + vel_w * np.sum(dv * dv, -1)
             else:
                 q = st["rot"][:, j]
-                f += rest_w * np.sum(qlog(q) ** 2, -1) + vel_w * np.sum(qlog(qmul(q, qconj(st["q0"][:, j]))) ** 2, -1)
+                sec += (rest_w * np.sum(qlog(q) ** 2, -1)
+                        + vel_w * np.sum(qlog(qmul(q, qconj(st["q0"][:, j]))) ** 2, -1))
     if bal_w > 0:
         b = _com_minus_support(R.com_w, R.support_w, R.parent, st["pos"])[:, [0, 2]]
         bb = np.sum(b * b, -1)
-        f += bal_w * bb
-        oerr = np.maximum(oerr, np.sqrt(bb))
-    return f, perr, oerr
+        sec += bal_w * bb
+        berr = np.sqrt(bb)
+    return f, perr, np.maximum(oerr, berr), sec, oerr
 
 
 def _axes(jt, base, theta):
@@ -202,10 +215,12 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, ba
 
     With bal_w > 0 the two rows after the effectors' 5E are the balance rows (x, z of c - s); with rotation
     targets (rot_w not None) 3 rows per effector follow: sqrt(rot_w) L log(q_target q^-1) (clamped to
-    ORI_CLAMP), columns sqrt(rot_w) L (world DOF axis).
+    ORI_CLAMP), columns sqrt(rot_w) L (world DOF axis). A free root (R.root): 3 more columns, identity times
+    sqrt(w) in each effector's position rows.
     """
     rig = R.rig
-    n, D, E = tgt.shape[0], rig.n_dof, rig.n_effectors
+    n, D, E = tgt.shape[0], R.n_col, rig.n_effectors
+    tgt = tgt - _root_shift(R, st)[:, None]
     nb = 2 if bal_w > 0 else 0
     nr = 3 * E if rot_w is not None else 0
     jac = np.zeros((n, 5 * E + nb + nr, D))
@@ -228,6 +243,8 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, ba
         d = np.where(dn > dmax, d * (dmax / np.maximum(dn, 1e-30)), d)
         r = 5 * e
         err[:, r : r + 3] = np.where(on[:, None], sw * d, 0.0)
+        if R.root:
+            jac[:, r : r + 3, rig.n_dof :] = np.where(on[:, None, None], sw[:, :, None] * np.eye(3), 0.0)
         has = on & (eff.axis is not None) & (np.sum(orient[:, e] ** 2, -1) > 0)
         if np.any(has):
             a = qrot(wrot[:, eff.joint], np.broadcast_to(eff_axis[e], (n, 3)))
@@ -294,13 +311,42 @@ def _build(R: _Rig, st, tgt, weights, orient, eff_lim, length, rest_w, vel_w, ba
     return jac, err, g
 
 
-def _solve(jac, err, g, lam2, free, joint_w, rest_w, vel_w):
-    """Step (n, D) = M g + M' J^T (J M' J^T + lam^2 I)^-1 (e - J M g)."""
+def _solve(jac, err, g, lam2, free, joint_w, rest_w, vel_w, bal_row=None, zmax=None, mu2=None):
+    """Step (n, D). Without secondary terms (zmax None): W J^T (J W J^T + lam^2 I)^-1 e, W = diag(joint_w free).
+
+    With them (kernels/dls_system.solve_step: task priority with damped pseudo-inverses) the two balance rows
+    from bal_row on (None: no balance) and the rest / velocity terms act in the null space of the other
+    (target) rows J1: d = d1 + N1 z, d1 = J1^+ e1, N1 = I - W J1^T (J1 W J1^T + mu2 I)^-1 J1,
+    z = M g + M' Hb^T (Hb M' Hb^T + lam^2 I)^-1 (eb - Jb d1 - Hb M g), Hb = Jb N1, z scaled to at most zmax
+    (n,) per column.
+    """
     w = joint_w[None, :] * free
+    if zmax is None:
+        a = np.einsum("nrd,nd,nsd->nrs", jac, w, jac) + lam2[:, None, None] * np.eye(jac.shape[1])
+        y = np.linalg.solve(a, err[..., None])[..., 0]
+        return w * np.einsum("nrd,nr->nd", jac, y)
+    prim = np.ones(jac.shape[1], bool)
+    if bal_row is not None:
+        prim[bal_row : bal_row + 2] = False
+    j1, e1 = jac[:, prim], err[:, prim]
+    jwj = np.einsum("nrd,nd,nsd->nrs", j1, w, j1)
+    eye = np.eye(j1.shape[1])
+    d1 = w * np.einsum("nrd,nr->nd", j1, np.linalg.solve(jwj + lam2[:, None, None] * eye, e1[..., None])[..., 0])
+
+    def solve_a1(v):  # (J1 W J1^T + mu^2 I)^-1 v: N1's
+        return np.linalg.solve(jwj + mu2 * eye, v[..., None])[..., 0]
+
     den = lam2[:, None] + w * (rest_w + vel_w)
-    mp = w * lam2[:, None] / den
     mg = w * g / den
-    a = np.einsum("nrd,nd,nsd->nrs", jac, mp, jac) + lam2[:, None, None] * np.eye(jac.shape[1])
-    b = err - np.einsum("nrd,nd->nr", jac, mg)
-    y = np.linalg.solve(a, b[..., None])[..., 0]
-    return mg + mp * np.einsum("nrd,nr->nd", jac, y)
+    z = mg
+    if bal_row is not None:
+        jb, eb = jac[:, bal_row : bal_row + 2], err[:, bal_row : bal_row + 2]
+        hb = np.stack([jb[:, b] - np.einsum("nr,nrd->nd", solve_a1(np.einsum("nrd,nd,nd->nr", j1, w, jb[:, b])), j1)
+                       for b in range(2)], axis=1)
+        mp = w * lam2[:, None] / den
+        s2 = np.einsum("nbd,nd,ncd->nbc", hb, mp, hb) + lam2[:, None, None] * np.eye(2)
+        rhs = eb - np.einsum("nbd,nd->nb", jb, d1) - np.einsum("nbd,nd->nb", hb, mg)
+        z = mg + mp * np.einsum("nbd,nb->nd", hb, np.linalg.solve(s2, rhs[..., None])[..., 0])
+    zm = np.max(np.abs(z), axis=1)
+    z = z * np.where(zm > zmax, zmax / np.maximum(zm, 1e-30), 1.0)[:, None]
+    return d1 + z - w * np.einsum("nrd,nr->nd", j1, solve_a1(np.einsum("nrd,nd->nr", j1, z)))

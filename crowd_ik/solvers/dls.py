@@ -16,27 +16,38 @@ from crowd_ik.solvers.limits import limit_pseudo_angles
 
 
 def solve(crowd, req) -> None:
-    if crowd.rig.constraint_free and crowd.rig.n_effectors == 1 and req.plain:
+    if crowd.rig.constraint_free and crowd.rig.n_effectors == 1 and req.plain and req.root_weight is None:
         _free(crowd, req)
     else:
         _general(crowd, req)
 
 
 def _general(crowd, req) -> None:
-    """kernels/dls.py, one launch."""
+    """kernels/dls.py, one launch. A free root (req.root_weight) adds 3 columns after the DOFs' D + 1; the
+    kernel moves crowd.root_pos in place (the Crowd then refreshes what it derives from the roots)."""
     from crowd_ik.kernels import dls
 
     ra, ti, rig, N = crowd.rig_arrays, crowd.ti, crowd.rig, crowd.n
     # rows: 3 per effector, 2 more for each effector with an axis (orientation target), 2 for balance
     D, J = max(rig.n_dof, 1), rig.n_joints
     R = 3 * rig.n_effectors + 2 * int(rig.arrays["eff_has_axis"].sum()) + 2 * int(req.balance_weight > 0)
-    extra = 0  # compile-time feature bits of kernels/dls.py: 1 full rotation targets
+    # compile-time feature bits of kernels/dls.py: 1 full rotation targets, 2 secondary terms in the null space,
+    # 4 a free root
+    extra = 0
     if req.rotations is not None:
         extra |= 1
         R += 3 * rig.n_effectors
+    if req.rest_weight > 0 or req.velocity_weight > 0 or req.balance_weight > 0:
+        extra |= 2
+    C = D + 1  # columns: the DOFs, one padding, and the root's translation when it is free
+    if req.root_weight is not None:
+        extra |= 4
+        C += 3
     cfg = dls_settings(rig, req.damping, req.joint_weights)
-    joint_w = np.zeros(D + 1, np.float32)
+    joint_w = np.zeros(C, np.float32)
     joint_w[: rig.n_dof] = 1.0 if req.joint_weights is None else req.joint_weights
+    if req.root_weight is not None:
+        joint_w[D + 1 : D + 1 + rig.dim] = req.root_weight  # a planar rig's root stays in its plane
     small = {}  # per-solve settings: a few dozen numbers
     for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
                         ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
@@ -53,8 +64,8 @@ def _general(crowd, req) -> None:
         *bundles.goal(crowd), *bundles.rotation_goal(crowd),
         crowd.scratch("dls_rel_pos", ti.math.vec3, (N, J)),
         crowd.scratch("dls_qwork", ti.math.vec4, (N, dls.N_Q_SLOTS, J)),
-        crowd.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, D + 1)),
-        crowd.scratch("dls_jac", ti.f32, (N, R, D + 1)), crowd.scratch("dls_rows", ti.f32, (N, 2, R)),
+        crowd.scratch("dls_work", ti.f32, (N, dls.N_DOF_SLOTS, C)),
+        crowd.scratch("dls_jac", ti.f32, (N, R, C)), crowd.scratch("dls_rows", ti.f32, (N, 3, R)),
         crowd.scratch("dls_sys", ti.f32, (N, R, R)),
         req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
         req.rest_weight, req.velocity_weight, req.balance_weight, extra, *bundles.result(crowd),

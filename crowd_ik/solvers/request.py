@@ -37,6 +37,7 @@ class SolveRequest:
     # (0 where none), or None for no rotation target at all
     rotations: np.ndarray | None = None
     rotation_weights: np.ndarray | None = None
+    root_weight: float | None = None  # None: the root stays; w > 0: it moves (DLS: 3 unknowns weighted w)
 
     @property
     def plain(self) -> bool:
@@ -68,7 +69,7 @@ def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> t
 
 def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, weights, orientations,
                   rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles=None,
-                  rotation_tolerance=1e-2, rotations=None, rotation_weights=None) -> SolveRequest:
+                  rotation_tolerance=1e-2, rotations=None, rotation_weights=None, root_weight=None) -> SolveRequest:
     """The checked SolveRequest for n characters of `rig`, or a ValueError naming the argument."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {', '.join(METHODS)} (got {method!r})")
@@ -111,6 +112,10 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
     if not is_number(rotation_tolerance) or not (math.isfinite(rotation_tolerance) and rotation_tolerance > 0):
         raise ValueError(f"rotation_tolerance: expected a positive number of radians (got {rotation_tolerance!r})")
     req.rotation_tolerance = float(rotation_tolerance)
+    if root_weight is not None:
+        if not is_number(root_weight) or not (math.isfinite(root_weight) and root_weight > 0):
+            raise ValueError(f"root_weight: expected None or a positive finite number (got {root_weight!r})")
+        req.root_weight = float(root_weight)
     if poles is not None:
         pole, has = rows_or_nan(poles, "poles", (n, E, dim), limit=MAX_EXTENT)
         if np.any(has):

@@ -53,6 +53,16 @@ DLS_EULER_B_MAX = 0.5 * math.pi - 0.01  # an Euler-angle ball joint's middle ang
 DLS_KICK = 0.5  # radians: an escape moves DOFs stuck on a limit this far inward (at most half their range)
 DLS_MAX_ESCAPES = 3  # escapes per solve
 DLS_ESCAPE_ATTEMPTS = 12  # attempts an escape gets to beat the pose before its kick
+# Secondary terms (rest, velocity, balance) in the null space of the targets (kernels/dls_system.py): their step z
+# is scaled to at most DLS_NULL_STEP (radians, or metres for a free root) times damping / lam per column, and a
+# step that does not lower the targets' part of F is still taken if it lowers the secondary part while every
+# target error stays within DLS_NULL_BAND x tolerance.
+DLS_NULL_STEP = 0.1
+DLS_NULL_BAND = 0.5
+# A free root under FABRIK and CCD (kernels/root_shift.py): before the solve the root moves, ROOT_SHIFT_ROUNDS
+# times, by min(root_weight, 1) x the weighted mean of how far the effectors' targets lie beyond
+# (1 - ROOT_SHIFT_SLACK) x their reach from the chain's base, over the effectors whose targets do.
+ROOT_SHIFT_ROUNDS, ROOT_SHIFT_SLACK = 8, 0.02
 
 # ---------------------------------------------------------------------------------------------- rotations
 GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
