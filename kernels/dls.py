@@ -22,7 +22,10 @@ transpose, pseudoinverse and damped least squares"; Buss & Kim 2005 for the erro
    z minimises the balance rows projected into that null space plus lam^2 z^T W^-1 z + alpha |rho + z|^2
    + beta |nu + z|^2 (so z = M g, m_d = w_d / (lam^2 + w_d (alpha + beta)), g = -(alpha rho + beta nu),
    without balance), z is scaled to at most NULL_STEP * damping / lam per column, and d = d1 + N1 z, N1
-   the projector onto that null space (damped by DAMPING_MIN L only; kernels/dls_system.solve_step). They shape the pose among the solutions and never hold a reachable
+   the projector onto that null space (damped by DAMPING_MIN L only; kernels/dls_system.solve_step).
+   They shape the pose among the solutions; if a character stalls with a target error above tolerance
+   (z's second-order effect, or a secondary goal out of reach, can hold the targets a little off), it
+   drops z (zmax = 0) and goes on with the targets alone, so a secondary term never holds a reachable
    target off. The R x R system (R <= 3E + 2 per effector with an axis) is solved by a Cholesky
    factorisation in a per-character scratch array (no local matrices).
 4. Active set: a DOF at a limit whose step points outward is frozen (m = 0) and the system solved
@@ -281,6 +284,7 @@ def dls_solve(
         ref_f = 0.0
         ref_s = 0.0
         ref_accepted = 0
+        zon = 1.0  # 0 once the secondary terms are dropped (see the stall test)
         go = 1
         while go == 1:
             # one call site per phase (every ti.func is inlined: fewer sites, faster compiles)
@@ -347,6 +351,11 @@ def dls_solve(
                 stop = 1
                 if esc == 1:
                     back = 1
+                elif ti.static(extra & 2) and zon > 0.0 and (obj[1] > tolerance or obj[4] > tolerance):
+                    zon = 0.0  # the secondary step held the targets off: go on with the targets alone
+                    bad = 0
+                    lam = damping
+                    stop = 0
                 elif escapes < MAX_ESCAPES:
                     if kick_step(i, parent, kind, jmode, lo, hi, dof_start, joint_w, work) > 0:
                         copy_pose(i, THETA, THETA_SAVE, -1, Q_SAVE, parent, local_rot, work, qwork)
@@ -392,7 +401,7 @@ def dls_solve(
                     rounds = 0
                     frozen = 1
                     while frozen > 0 and rounds <= D:
-                        failed = 1 - solve_step(i, R, Rb, lam * lam, mu2, NULL_STEP * damping / lam, rest_w,
+                        failed = 1 - solve_step(i, R, Rb, lam * lam, mu2, zon * NULL_STEP * damping / lam, rest_w,
                                                 vel_w, joint_w, jac, rows, sys, work, extra)
                         frozen = freeze_outward(i, parent, kind, jmode, lo, hi, dof_start, work)
                         rounds += 1

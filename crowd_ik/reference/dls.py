@@ -163,6 +163,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
     step = np.zeros((N, D))
     max_attempts = 2 * max_iterations + 8
     go = np.zeros(N, bool)
+    zon = np.ones(N)  # 0 once the secondary terms are dropped
 
     def restore_saved(ids):
         st["theta"][ids], st["rot"][ids] = saved["theta"][ids], saved["rot"][ids]
@@ -184,7 +185,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
                              *rot_of(m))
         fr = np.ones((m.size, D))
         lam2 = lam[m] ** 2
-        sec = dict(bal_row=5 * E if bal_w > 0 else None, zmax=NULL_STEP * lam0 / lam[m],
+        sec = dict(bal_row=5 * E if bal_w > 0 else None, zmax=zon[m] * NULL_STEP * lam0 / lam[m],
                    mu2=(DAMPING_MIN * length) ** 2) if null else {}
         stp = _solve(jac, err, g, lam2, fr, joint_w, rest_w, vel_w, **sec)
         for _ in range(D + 1):
@@ -193,7 +194,7 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
                 break
             c = np.flatnonzero(changed)
             if null:
-                sec["zmax"] = NULL_STEP * lam0 / lam[m[c]]
+                sec["zmax"] = zon[m[c]] * NULL_STEP * lam0 / lam[m[c]]
             stp[c] = _solve(jac[c], err[c], g[c], lam2[c], fr[c], joint_w, rest_w, vel_w, **sec)
         step[m], free[m] = stp, fr
 
@@ -202,6 +203,10 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         stalled_now = (bad[ids] >= STALL_AFTER) | (lam[ids] > LAM_CAP * length)
         back = stalled_now & esc[ids]  # a stalled escape goes back to the pose before its kick
         stop[ids[back]] = True
+        if null:  # the secondary step held the targets off: go on with the targets alone
+            drop = stalled_now & ~esc[ids] & (zon[ids] > 0) & ((obj[ids, 1] > tolerance) | (obj[ids, 4] > tolerance))
+            zon[ids[drop]], bad[ids[drop]], lam[ids[drop]] = 0.0, 0, lam0
+            stalled_now &= ~drop
         fresh = ids[stalled_now & ~esc[ids] & (escapes[ids] < MAX_ESCAPES)]
         can = fresh[np.any(_kick(R, st["theta"][fresh], free[fresh], joint_w) != 0, axis=1)]
         for key in ("theta", "rot"):
