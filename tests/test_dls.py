@@ -333,7 +333,9 @@ def test_zero_joint_weight_freezes_a_dof_exactly():
     np.testing.assert_allclose(crowd.rotations()[:, 2], q0[:, 2], atol=1e-6)
 
 
-def test_rest_and_velocity_weights_pull_toward_rest_and_start():
+def test_rest_and_velocity_weights_move_toward_rest_and_start_and_keep_the_targets():
+    # issue 15: the terms act in the null space of the targets (before, they pulled the tip up to 1 cm off: the
+    # old assertions here were error < 1e-2 and a stronger pull, 0.7 x the plain solve's motion)
     rig = cik.Rig.chain(6, 0.2, dim=3)
     rng = np.random.default_rng(5)
     start = rng.uniform(-0.6, 0.6, (30, rig.n_dof)).astype(np.float32)
@@ -350,14 +352,14 @@ def test_rest_and_velocity_weights_pull_toward_rest_and_start():
     q_start = crowd.rotations().astype(np.float64)
     plain, rot_plain, _ = solve()
     rest, rot_rest, _ = solve(rest_weight=1e-3)
-    assert np.all(plain.converged)
-    assert np.all(rot_rest < rot_plain) and rest.error.max() < 1e-2
+    assert np.all(plain.converged) and np.all(rest.converged)
+    assert np.mean(rot_rest < rot_plain) >= 0.9 and rot_rest.mean() < 0.8 * rot_plain.mean()
     vel, _, _ = solve(velocity_weight=1e-3)
     moved_vel = np.linalg.norm(qlog(qmul(crowd.rotations().astype(np.float64), qconj(q_start))), axis=-1).sum(1)
     solve()
     moved_plain = np.linalg.norm(qlog(qmul(crowd.rotations().astype(np.float64), qconj(q_start))), axis=-1).sum(1)
-    assert np.mean(moved_vel < moved_plain) >= 0.9 and moved_vel.mean() < 0.7 * moved_plain.mean()
-    assert vel.error.max() < 1e-2
+    assert np.mean(moved_vel < moved_plain) >= 0.9 and moved_vel.mean() < 0.8 * moved_plain.mean()
+    assert np.all(vel.converged)
 
 
 def test_default_damping_and_error_clamp():

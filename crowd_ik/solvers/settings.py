@@ -62,7 +62,7 @@ DLS_NULL_BAND = 0.5
 # A free root under FABRIK and CCD (kernels/root_shift.py): before the solve the root moves, ROOT_SHIFT_ROUNDS
 # times, by min(root_weight, 1) x the weighted mean of how far the effectors' targets lie beyond
 # (1 - ROOT_SHIFT_SLACK) x their reach from the chain's base, over the effectors whose targets do.
-ROOT_SHIFT_ROUNDS, ROOT_SHIFT_SLACK = 8, 0.02
+ROOT_SHIFT_ROUNDS, ROOT_SHIFT_SLACK = 8, 0.1
 
 # ---------------------------------------------------------------------------------------------- rotations
 GIMBAL = 0.9999995  # |R02| from which an XYZ decomposition is taken as gimbal-locked
