@@ -25,8 +25,9 @@ transpose, pseudoinverse and damped least squares"; Buss & Kim 2005 for the erro
    the projector onto that null space (damped by DAMPING_MIN L only; kernels/dls_system.solve_step).
    They shape the pose among the solutions; if a character stalls with a target error above tolerance
    (z's second-order effect, or a secondary goal out of reach, can hold the targets a little off), it
-   drops z (zmax = 0) and goes on with the targets alone, so a secondary term never holds a reachable
-   target off. The R x R system (R <= 3E + 2 per effector with an axis) is solved by a Cholesky
+   drops z (zmax = 0) and goes on with the targets alone until they are back within NULL_BAND x
+   tolerance, so a secondary term never holds a reachable target off. (Its stall test counts S's
+   progress only once the targets are within tolerance.) The R x R system (R <= 3E + 2 per effector with an axis) is solved by a Cholesky
    factorisation in a per-character scratch array (no local matrices).
 4. Active set: a DOF at a limit whose step points outward is frozen (m = 0) and the system solved
    again; every attempt starts with all DOFs free, so a DOF is released when its step points inward.
@@ -328,10 +329,14 @@ def dls_solve(
                     obj = new
                     accepted += 1
                     lam = ti.max(0.5 * lam, damping)
+                    if ti.static(extra & 2):  # back in the band: the secondary step resumes
+                        if new[1] <= NULL_BAND * tolerance and new[4] <= NULL_BAND * tolerance:
+                            zon = 1.0
                     if accepted - ref_accepted >= WINDOW:  # too slow: F (and S) fell by less than PROGRESS
                         slow = obj[0] > (1.0 - PROGRESS) * ref_f
-                        if ti.static(extra & 2):
-                            slow = slow and obj[3] >= (1.0 - PROGRESS) * ref_s
+                        if ti.static(extra & 2):  # S's progress counts once the targets are within tolerance
+                            slow = slow and (obj[3] >= (1.0 - PROGRESS) * ref_s or obj[1] > tolerance
+                                             or obj[4] > tolerance)
                         if slow:
                             bad = STALL_AFTER
                         ref_f = obj[0]

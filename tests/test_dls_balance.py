@@ -168,27 +168,34 @@ def test_balance_kernel_matches_numpy_twin(case):
     assert np.mean(off < 2e-3) >= 0.9
 
 
-def test_objective_with_balance_never_increases():
+def test_feet_error_then_balance_never_increase():
+    # issue 15: balance is secondary (the null space of the feet), so between the poses a solve can end in the
+    # feet's error F never rises, and where it does not fall (every foot within half the tolerance) the balance
+    # term S does not rise (before, F + S together never rose)
     crowd, planted = pushed_humanoids(10, seed=7)
     h = crowd.rig
     start = crowd.rotations()
     feet = h.arrays["eff_joint"][3:]
+    tol = 1e-4
 
-    def objective():
+    def objectives():
         pos = crowd.joint_positions().astype(np.float64)
-        f = np.sum((pos[:, feet] - planted[:, 3:]) ** 2, axis=(1, 2))
-        return f + 2.0 * np.sum(centre_of_mass_offset(h, pos) ** 2, axis=1)
+        d = np.linalg.norm(pos[:, feet] - planted[:, 3:], axis=-1)
+        return np.sum(d**2, axis=1), d.max(axis=1), 2.0 * np.sum(centre_of_mass_offset(h, pos) ** 2, axis=1)
 
-    previous = f0 = objective()
+    f_prev, _, s_prev = f0, _, s0 = objectives()
     for k in range(1, 16):
         crowd.set_rotations(start)
-        rep = crowd.solve(planted, method="dls", weights=FEET, balance_weight=2.0, max_iterations=k, tolerance=1e-4)
+        rep = crowd.solve(planted, method="dls", weights=FEET, balance_weight=2.0, max_iterations=k, tolerance=tol)
         assert np.all(rep.iterations <= k)
-        f = objective()
-        assert np.all(f <= previous * (1 + 1e-4) + 1e-9)
-        previous = f
-    # most are done by then; a straight knee on its limit waits for an escape (test_balance_brings_... runs on)
-    assert np.mean(previous < 0.01 * f0) >= 0.8
+        f, worst, s = objectives()
+        fell = f <= f_prev * (1 + 1e-4) + 1e-9
+        banded = (worst <= 0.5 * tol + 1e-6) & (s <= s_prev * (1 + 1e-4) + 1e-9)
+        assert np.all(fell | banded)
+        f_prev, s_prev = f, s
+    # the feet first, then balance: after 15 iterations F + S is 6-21 % of where it began (before issue 15, with the
+    # feet allowed to slide, most were below 1 %); test_balance_brings_... runs on to convergence
+    assert np.all(f_prev + s_prev < 0.25 * (f0 + s0))
 
 
 def test_balance_is_a_dls_objective_only():

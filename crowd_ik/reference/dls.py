@@ -246,6 +246,8 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
             st[key][acc] = trial[key][better]
         obj[acc] = new[better]
         accepted[acc] += 1
+        if null:  # back in the band: the secondary step resumes
+            zon[acc[(obj[acc, 1] <= band) & (obj[acc, 4] <= band)]] = 1.0
         lam[acc] = np.where(kicked[better], lam0, np.maximum(0.5 * lam[acc], lam0))
         bad[idx] = np.where(better & ~flat, 0, bad[idx] + 1)
         lam[idx[~better]] *= 4.0
@@ -254,8 +256,9 @@ def dls_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orientat
         plain = idx[better & ~kicked]
         due = plain[accepted[plain] - ref_acc[plain] >= WINDOW]
         slow = obj[due, 0] > (1.0 - PROGRESS) * ref_f[due]
-        if null:
-            slow &= obj[due, 3] >= (1.0 - PROGRESS) * ref_s[due]
+        if null:  # S's progress counts once the targets are within tolerance
+            slow &= ((obj[due, 3] >= (1.0 - PROGRESS) * ref_s[due]) | (obj[due, 1] > tolerance)
+                     | (obj[due, 4] > tolerance))
         bad[due[slow]] = STALL_AFTER
         ref_f[due], ref_s[due], ref_acc[due] = obj[due, 0], obj[due, 3], accepted[due]
         k = idx[kicked]
