@@ -82,7 +82,8 @@ def forward_joint(i, j, p, length, fallback, work: ti.template(), acc_w: ti.temp
 @ti.func
 def backward_pass(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), eff_joint: ti.template(),
                   targets: ti.template(), weights: ti.template(), local_rot: ti.template(), world_pos: ti.template(),
-                  work: ti.template(), acc_w: ti.template(), rot_t: ti.template(), rot_w: ti.template(), use_rot):
+                  work: ti.template(), acc_w: ti.template(), rot_t: ti.template(), rot_w: ti.template(),
+                  use_rot: ti.template()):
     """Targets -> root. Afterwards work[i, j] holds joint j's proposed position, acc_w[i, j] > 0 on active joints.
     With rotation targets (use_rot) a fixed effector joint proposes its parent where the target rotation puts it."""
     J = parent.shape[0]
@@ -90,15 +91,16 @@ def backward_pass(i, parent: ti.template(), offset: ti.template(), kind: ti.temp
     for jj in range(J - 1):
         j = J - 1 - jj
         length = offset[j].norm()
-        if use_rot and acc_w[i, j] > 0.0:
-            p = parent[j]
-            w = acc_w[i, j]
-            pj = work[i, j] / w
-            toward = safe_normalize(world_pos[i, p] - pj, -offset[j] / length)
-            toward = extended_toward(i, j, length, toward, kind, offset, eff_joint, local_rot, rot_t, rot_w)
-            work[i, j] = pj
-            work[i, p] += w * (pj + length * toward)
-            acc_w[i, p] += w
+        if ti.static(use_rot):
+            if acc_w[i, j] > 0.0:
+                p = parent[j]
+                w = acc_w[i, j]
+                pj = work[i, j] / w
+                toward = safe_normalize(world_pos[i, p] - pj, -offset[j] / length)
+                toward = extended_toward(i, j, length, toward, kind, offset, eff_joint, local_rot, rot_t, rot_w)
+                work[i, j] = pj
+                work[i, p] += w * (pj + length * toward)
+                acc_w[i, p] += w
         else:
             backward_joint(i, j, parent[j], length, -offset[j] / length, world_pos, work, acc_w)
     if acc_w[i, 0] > 0.0:
@@ -294,7 +296,8 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                           root_yaw: ti.template(),
                           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(),
                           weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template(),
-                          use_orient, rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template(), use_rot):
+                          use_orient, rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template(),
+                          use_rot: ti.template()):
     """Rotations from the proposed positions, clamped to the limits, then FK, in one topological sweep."""
     q_root = yaw_quat(root_yaw[i])
     for j in range(parent.shape[0]):
@@ -353,7 +356,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             for e in range(eff_joint.shape[0] if use_orient else 0):
                 if eff_joint[e] == j and weights[i, e] > 0.0 and orient[i, e].norm_sqr() > 0.0:
                     q = align_axis(k, axes[j, 0], axes[j, 1], q, eff_axis[e], qrot(inv_base, orient[i, e]))
-            if use_rot:
+            if ti.static(use_rot):
                 q = turn_onto_targets(i, j, q, inv_base, pos_j, eff_joint, world_pos, world_rot, rot_t, rot_w,
                                       eff_move)
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
@@ -394,7 +397,7 @@ def fabrik_solve(
     rot_w: ndarray(ndim=2),
     eff_move: ndarray(dtype=ti.i32, ndim=2),
     rotation_tolerance: ti.f32,
-    use_rot: ti.i32,
+    use_rot: ti.template(),
     error: ndarray(ndim=1),
     iterations: ndarray(dtype=ti.i32, ndim=1),
     stalled: ndarray(dtype=ti.i32, ndim=1),
@@ -404,7 +407,8 @@ def fabrik_solve(
     targets (N, E, 3) world metres; weights (N, E); orient (N, E, 3) unit directions or zero (read only
     when use_orient is 1); rot_t (N, E, 4) x y z w rotation targets of the effector joints' world rotations,
     rot_w (N, E) > 0 where one counts, eff_move (E, 2) each effector's moving joint and limb ball joint
-    (solvers/ccd.moving_joints), read only when use_rot is 1 (kernels/fabrik_rotation.py).
+    (solvers/ccd.moving_joints), read only when use_rot is 1 (kernels/fabrik_rotation.py). use_rot is a
+    compile-time bit: with 0 the kernel compiles to the code it was without rotation targets.
     Outputs: error (N,) final max effector distance, iterations (N,), stalled (N,) 1 if it stopped improving.
     recover_each_iteration 0 is for rigs without constraints (free ball joints, no orientation targets):
     on a chain the recovered rotations reproduce the FABRIK positions exactly, so recovering them once
@@ -418,7 +422,7 @@ def fabrik_solve(
         if use_orient:
             turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
         rturn = 0.0
-        if use_rot:
+        if ti.static(use_rot):
             rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
         it = 0
         flat = 0
@@ -426,8 +430,9 @@ def fabrik_solve(
         done = 0
         while done == 0:
             # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
-            iterate = it < max_iterations and (err > tolerance or turn > 1e-6 or rturn > rotation_tolerance) \
-                and stop == 0
+            iterate = it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0
+            if ti.static(use_rot):
+                iterate = iterate or (it < max_iterations and rturn > rotation_tolerance and stop == 0)
             if iterate:
                 backward_pass(i, parent, offset, kind, eff_joint, targets, weights, local_rot, world_pos, work, acc_w,
                               rot_t, rot_w, use_rot)
@@ -449,12 +454,14 @@ def fabrik_solve(
                 if use_orient:
                     new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
                 new_rturn = 0.0
-                if use_rot:
+                if ti.static(use_rot):
                     new_rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
                 it += 1
                 # stalled: four updates in a row that improved neither error by one part in a million
-                if new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT) \
-                        and new_rturn >= rturn * (1.0 - FLAT):
+                flat_now = new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT)
+                if ti.static(use_rot):
+                    flat_now = flat_now and new_rturn >= rturn * (1.0 - FLAT)
+                if flat_now:
                     flat += 1
                 else:
                     flat = 0
