@@ -1,0 +1,43 @@
+"""FABRIK on the joint-limited humanoid (issue 15): the quality figures of tests/fabrik_quality.py as tests. The
+head dragged forward keeps the neck from taking the bend alone; the in-limit-pose success rate and the cross-body
+reach are below the issue's goals (97 %, 5 mm) and are strict xfails that record where they stand."""
+
+import numpy as np
+import pytest
+
+import crowd_ik as cik
+
+from fabrik_quality import bend, cross_body, head_forward, in_limit_poses
+
+
+def test_the_head_dragged_forward_bends_the_spine_not_the_neck_alone():
+    # 0.3 m forward is out of reach with the feet and hands held: the torso leans from the pelvis, straight
+    ratio, err, _ = head_forward()
+    assert ratio <= 0.5 and 0.05 < err < 0.08  # measured 0.0014, 64 mm (DLS: 64 mm)
+    # 0.3 m forward and 0.1 m down is reachable: the bend spreads over spine, chest and neck
+    rig = cik.Rig.humanoid()
+    crowd = cik.Crowd(rig, n=1)
+    t = crowd.effector_positions().copy()
+    t[0, 0] += np.array([0.0, -0.1, 0.3], np.float32)
+    rep = crowd.solve(t, method="fabrik", max_iterations=100, tolerance=5e-3)
+    rot = crowd.rotations()
+    b = [bend(rig, rot, j, c)[0] for j, c in (("spine", "chest"), ("chest", "neck"), ("neck", "head"))]
+    assert rep.converged[0] and b[2] <= 0.5 * sum(b)  # measured 0.296 of 0.852 rad
+
+
+def test_in_limit_poses_converge_for_most_characters():
+    rep = in_limit_poses(1000, seed=0)
+    assert np.mean(rep.converged) >= 0.8  # measured 85.2 % (seeds 1, 2: 83.4, 81.3 %); DLS 100 %
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15 goal not met: 85 % of in-limit poses converge, not 97 % (the "
+                                       "chest and spine end at their lateral limits in the unsolved poses)")
+def test_in_limit_poses_converge_for_97_percent():
+    assert np.mean(in_limit_poses(1000, seed=0).converged) >= 0.97
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15 goal not met: the cross-body reach stalls 6.8 mm off (the head "
+                                       "8.2 mm), not within 5 mm as DLS gets")
+def test_cross_body_reach_within_5_mm():
+    err, rep = cross_body()
+    assert err <= 5e-3 and rep.error[0] <= 5e-3
