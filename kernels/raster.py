@@ -57,7 +57,7 @@ from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND:
     effective_radius, empty_key, mark_tiles, pixel_range, row3, shadow_soft, shadow_value, sphere_bounds,
 )
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
-    shade_background, shade_frame, shade_frame_background,
+    shade_all, shade_background, shade_frame, shade_frame_background, shade_tiles,
 )
 
 ndarray = ti.types.ndarray
@@ -74,6 +74,12 @@ def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.
     Image loops here run in parallel over rows with a serial loop along each row: on the CPU
     backend that is several times faster than a ti.ndrange over pixels (whose flat index is
     divided back into (row, column) for every pixel)."""
+    clear_tiles(keys, shadow, tiles)
+
+
+@ti.func
+def clear_tiles(keys: ti.template(), shadow: ti.template(), tiles: ti.template()):
+    """clear_buffers' loop (a top-level loop of the kernel it is inlined in: parallel over tile rows)."""
     height = keys.shape[0]
     width = keys.shape[1]
     for ty in range(tiles.shape[0]):
@@ -105,6 +111,13 @@ def load_primitives(
 ):
     """Copy the first n rows of the host arrays into the renderer's ndarrays (one launch; an
     ndarray's from_numpy costs ~10 ns per element on the CPU backend, this ~1 ns)."""
+    load_rows(src_a, src_b, src_r, src_c, n, pa, pb, radius, color)
+
+
+@ti.func
+def load_rows(src_a: ti.template(), src_b: ti.template(), src_r: ti.template(), src_c: ti.template(), n,
+              pa: ti.template(), pb: ti.template(), radius: ti.template(), color: ti.template()):
+    """load_primitives's loop (the top-level, parallel loop of the kernel it is inlined in)."""
     for i in range(n):
         for c in ti.static(range(3)):
             pa[i, c] = src_a[i, c]
@@ -126,6 +139,13 @@ def raster_capsules(
     """Lower keys[py, px] to (depth bits << 32 | i) for every primitive i < n whose capsule the
     pixel's ray enters at view depth >= near. keys must be cleared first. Every tile of a
     primitive's screen box is flagged in tiles (bit 0)."""
+    raster_loop(cam, pa, pb, radius, n, keys, tiles)
+
+
+@ti.func
+def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius: ti.template(), n,
+                keys: ti.template(), tiles: ti.template()):
+    """raster_capsules's loop (the top-level, parallel loop of the kernel it is inlined in)."""
     height = keys.shape[0]
     width = keys.shape[1]
     for i in range(n):
@@ -189,6 +209,13 @@ def splat_shadows(
     k < n at the ground point seen through pixel coordinates (2j + 0.5, 2i + 0.5). shadow must be
     cleared first. Every tile with a pixel that samples a texel of a primitive's texel box is
     flagged in tiles (bit 0): texel i is sampled by pixel rows 2i - 1 .. 2i + 2 (shadow_row)."""
+    splat_loop(cam, pa, pb, radius, n, shadow, tiles)
+
+
+@ti.func
+def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius: ti.template(), n,
+               shadow: ti.template(), tiles: ti.template()):
+    """splat_shadows's loop (the top-level, parallel loop of the kernel it is inlined in)."""
     height = shadow.shape[0]
     width = shadow.shape[1]
     for i in range(n):
@@ -246,3 +273,38 @@ def splat_shadows(
                             level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
                             if level > shadow[py, px]:  # levels only rise
                                 ti.atomic_max(shadow[py, px], level)
+
+
+@ti.kernel
+def draw_frame(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    src_a: ndarray(dtype=ti.f32, ndim=2),
+    src_b: ndarray(dtype=ti.f32, ndim=2),
+    src_r: ndarray(dtype=ti.f32, ndim=1),
+    src_c: ndarray(dtype=ti.f32, ndim=2),
+    n: ti.i32,
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    radius: ndarray(dtype=ti.f32, ndim=1),
+    color: ndarray(dtype=ti.f32, ndim=2),
+    keys: ndarray(dtype=ti.i64, ndim=2),
+    shadow: ndarray(dtype=ti.i32, ndim=2),
+    tiles: ndarray(dtype=ti.i32, ndim=2),
+    background: ndarray(dtype=ti.f32, ndim=3),
+    frame: ndarray(dtype=ti.u8, ndim=3),
+    depth: ndarray(dtype=ti.f32, ndim=2),
+    new_camera: ti.template(),
+):
+    """A whole frame in one launch: load_primitives, clear_buffers, raster_capsules, splat_shadows,
+    then shade_frame_background (new_camera True: every tile's tiles flag must be set) or
+    shade_frame. Each step is one top-level loop, and Taichi runs a kernel's top-level loops one
+    after the other, so this is those five kernels launched in turn, bit for bit, for the Python
+    cost of one launch (~0.5-1 ms each on the CPU backend, mostly argument handling)."""
+    load_rows(src_a, src_b, src_r, src_c, n, pa, pb, radius, color)
+    clear_tiles(keys, shadow, tiles)
+    raster_loop(cam, pa, pb, radius, n, keys, tiles)
+    splat_loop(cam, pa, pb, radius, n, shadow, tiles)
+    if ti.static(new_camera):
+        shade_all(cam, pa, pb, color, keys, shadow, background, frame, depth)
+    else:
+        shade_tiles(cam, pa, pb, color, keys, shadow, background, tiles, frame, depth)

@@ -181,6 +181,14 @@ def shade_frame(
     Only the tiles flagged in tiles (drawn on this frame or the last) are shaded: every other
     pixel has no primitive and no shadow, and still holds the background from an earlier frame.
     """
+    shade_tiles(cam, pa, pb, color, keys, shadow, background, tiles, frame, depth)
+
+
+@ti.func
+def shade_tiles(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
+                shadow: ti.template(), background: ti.template(), tiles: ti.template(), frame: ti.template(),
+                depth: ti.template()):
+    """shade_frame's loop (the top-level, parallel loop of the kernel it is inlined in)."""
     width = keys.shape[1]
     for py in range(keys.shape[0]):
         i0, i1, fv = shadow_row(shadow, py)
@@ -208,6 +216,13 @@ def shade_frame_background(
     tile is shaded anyway): each pixel's background is computed, stored for the frames that keep
     this camera, and used at once, so the (H, W, 3) float32 buffer is not read back. The same
     functions run on the same values, so the frame, depth and background are the same bit for bit."""
+    shade_all(cam, pa, pb, color, keys, shadow, background, frame, depth)
+
+
+@ti.func
+def shade_all(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
+              shadow: ti.template(), background: ti.template(), frame: ti.template(), depth: ti.template()):
+    """shade_frame_background's loop (the top-level, parallel loop of the kernel it is inlined in)."""
     for py in range(keys.shape[0]):
         i0, i1, fv = shadow_row(shadow, py)
         for px in range(keys.shape[1]):

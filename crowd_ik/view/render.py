@@ -4,8 +4,8 @@ in Taichi and draws trails and the HUD with OpenCV.
 A frame is an (H, W, 3) uint8 BGR array, row 0 at the top, so the same drawing serves the video
 sinks, PNG stills and the mouse mode. The world is y up, metres, ground plane y = 0.
 
-The heavy part is five kernel launches per frame whatever the number of primitives
-(kernels/raster.py explains the method): copy this frame's primitives in, clear the buffers,
+The heavy part is one kernel launch per frame whatever the number of primitives (kernels/raster.py
+draw_frame, five passes in turn; kernels/raster.py explains the method): copy this frame's primitives in, clear the buffers,
 rasterise every capsule and sphere into an integer z-buffer (exact ray-capsule hits, `atomic_min`
 on (depth bits, id) keys, so frames are bit-identical across runs and thread counts), splat soft
 ground shadows into a half-resolution buffer, shade every pixel (sky gradient, ground grid,
@@ -326,15 +326,10 @@ class Renderer:
         if new_camera:  # every pixel's background changes; shade_frame_background computes it below
             self._background_cam = packed
             self._tiles.fill(1)
-        if n:
-            hosts = (self._host_a, self._host_b, self._host_r, self._host_c)
-            kr.load_primitives(*hosts, n, self._pa, self._pb, self._radius, self._color)
-        kr.clear_buffers(self._keys, self._shadow, self._tiles)
-        kr.raster_capsules(self._cam, self._pa, self._pb, self._radius, n, self._keys, self._tiles)
-        kr.splat_shadows(self._cam, self._pa, self._pb, self._radius, n, self._shadow, self._tiles)
-        shade = kr.shade_frame_background if new_camera else kr.shade_frame  # all tiles, or the dirty ones
-        shade(self._cam, self._pa, self._pb, self._color, self._keys, self._shadow, self._background,
-              *(() if new_camera else (self._tiles,)), self._frame, self._depth)
+        # load, clear, rasterise, splat shadows and shade (all tiles for a new camera, else the dirty ones)
+        kr.draw_frame(self._cam, self._host_a, self._host_b, self._host_r, self._host_c, n, self._pa, self._pb,
+                      self._radius, self._color, self._keys, self._shadow, self._tiles, self._background,
+                      self._frame, self._depth, new_camera)
         if self.frame_source is None:
             return self._frame.copy()
         out = self.frame_source()  # the frame buffer persists (dirty tiles): the frame is copied out
