@@ -446,3 +446,46 @@ def test_renderer_rejects_bad_input():
     with pytest.raises(ValueError, match="max_capsules"):
         Renderer(cam, -1, 0)
     rend.camera = _cam(pos=(1.0, 2.0, 6.0))  # same size: accepted
+
+
+def _draw_buffers(cam, p):
+    h, w = cam.height, cam.width
+    tiles = np.ones(((h + kr.TILE - 1) // kr.TILE, (w + kr.TILE - 1) // kr.TILE), np.int32)
+    return dict(pa=np.zeros((p, 3), np.float32), pb=np.zeros((p, 3), np.float32), radius=np.zeros(p, np.float32),
+                color=np.zeros((p, 3), np.float32), keys=np.zeros((h, w), np.int64),
+                shadow=np.zeros((h // 2, w // 2), np.int32), tiles=tiles, background=np.zeros((h, w, 3), np.float32),
+                frame=np.zeros((h, w, 3), np.uint8), depth=np.zeros((h, w), np.float32))
+
+
+def test_draw_frame_is_the_five_kernels_in_turn():
+    """The one-launch frame (kernels/raster.draw_frame) against load, clear, raster, shadows and shade
+    launched one by one on a copy of the same persistent buffers: a new camera's frame (all tiles),
+    then frames of moved primitives that shade only the dirty tiles."""
+    cam = _cam(w=96, h=64)
+    a, b, r = (np.ascontiguousarray(x, np.float32) for x in _scene(seed=3))
+    colors = np.random.default_rng(3).uniform(0.0, 1.0, (len(r), 3)).astype(np.float32)
+    p = len(r) + 2
+    fused, split = _draw_buffers(cam, p), _draw_buffers(cam, p)
+    packed = cam.packed()
+    for frame_no, shift in enumerate((0.0, 0.4, 0.4)):
+        new_camera = frame_no == 0
+        src = (a[:-1] + shift, b[:-1] + shift, r[:-1], colors[:-1])  # n < P: rows past n are not drawn
+        n = len(r) - 1
+        hosts = [np.zeros_like(fused[k]) for k in ("pa", "pb", "radius", "color")]
+        for host, s in zip(hosts, src):
+            host[:n] = s
+        kr.draw_frame(packed, *hosts, n, *fused.values(), new_camera)
+        s = split
+        kr.load_primitives(*hosts, n, s["pa"], s["pb"], s["radius"], s["color"])
+        kr.clear_buffers(s["keys"], s["shadow"], s["tiles"])
+        kr.raster_capsules(packed, s["pa"], s["pb"], s["radius"], n, s["keys"], s["tiles"])
+        kr.splat_shadows(packed, s["pa"], s["pb"], s["radius"], n, s["shadow"], s["tiles"])
+        common = (packed, s["pa"], s["pb"], s["color"], s["keys"], s["shadow"], s["background"])
+        if new_camera:
+            kr.shade_frame_background(*common, s["frame"], s["depth"])
+        else:
+            kr.shade_frame(*common, s["tiles"], s["frame"], s["depth"])
+        for key, value in fused.items():
+            np.testing.assert_array_equal(value, split[key], err_msg=f"frame {frame_no}: {key}")
+        assert len(np.unique(decode_keys(fused["keys"])[0])) > 4  # primitives drawn
+    assert np.any(fused["tiles"] == 3) and np.any(fused["tiles"] == 0)  # the last frame skipped clean tiles
