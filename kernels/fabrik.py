@@ -10,6 +10,7 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 
 import taichi as ti
 
+from crowd_ik.kernels.fabrik_pass_up import pass_up
 from crowd_ik.kernels.fabrik_rotation import extended_toward, rotation_error, turn_onto_targets
 from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
@@ -359,7 +360,12 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             if ti.static(use_rot):
                 q = turn_onto_targets(i, j, q, inv_base, pos_j, eff_joint, world_pos, world_rot, rot_t, rot_w,
                                       eff_move)
+            q_want = q
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
+            if k == 3 and p > 0:
+                q, base_rot, pos_j = pass_up(i, j, q_want, q, parent, offset, kind, axes, lo, hi, lim_p, cone,
+                                             dof_start, child_start, first_bone, local_rot, world_pos, world_rot)
+                world_pos[i, j] = pos_j
             local_rot[i, j] = q
         world_rot[i, j] = qmul(base_rot, q)
 

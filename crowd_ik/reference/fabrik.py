@@ -205,6 +205,38 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
     return out, ok
 
 
+def _pass_up(rig, j, q_want, q, active, rot, pos, wrot, first_bone):
+    """kernels/fabrik_pass_up.py: ball joint j asked for q_want and was clamped to q; its parent (a ball joint with
+    this one child, not the root) takes the excess within its limits (rot, wrot, pos updated in place) and j is
+    re-clamped under it. Returns (j's rotation, its base rotation)."""
+    arr = rig.arrays
+    p = rig.joints[j].parent
+    base_rot = wrot[:, p]
+    par = rig.joints[p]
+    if p <= 0 or par.kind != "ball" or len(rig.children[p]) != 1:
+        return q, base_rot
+    d = qmul(q_want, qconj(q))
+    moved = active & (np.sum(d[:, :3] ** 2, -1) > 1e-12)
+    if not np.any(moved):
+        return q, base_rot
+    lo_all, hi_all = arr["lo"].astype(np.float64), arr["hi"].astype(np.float64)
+    offset = arr["offset"].astype(np.float64)
+    joint = rig.joints[j]
+    sp, s = rig.dof_start[p], rig.dof_start[j]
+    q_p = rot[:, p]
+    q_p2 = constrain_rotation(par.dof, np.array(par.axes or [(0, 0, 1)] * 2), qmul(q_p, d), lo_all[sp : sp + par.dof],
+                              hi_all[sp : sp + par.dof], par.cone or 0.0, offset[j] / np.linalg.norm(offset[j]))
+    q_p2 = np.where(moved[:, None], q_p2, q_p)
+    rot[:, p] = q_p2
+    wrot[:, p] = qmul(wrot[:, par.parent], q_p2)
+    base_rot = wrot[:, p]
+    pos[:, j] = np.where(moved[:, None], pos[:, p] + qrot(base_rot, np.broadcast_to(offset[j], pos[:, j].shape)),
+                         pos[:, j])
+    q2 = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), qmul(qconj(q_p2), qmul(q_p, q_want)),
+                            lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
+    return np.where(moved[:, None], q2, q), base_rot
+
+
 def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient, rot_goal=None):
     arr = rig.arrays
     offset = arr["offset"].astype(np.float64)
@@ -278,8 +310,11 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient, 
             if rot_goal is not None:
                 q = rt.turn_onto_targets(rig, j, q, inv_base, pos_j, pos, wrot, *rot_goal)
             s = rig.dof_start[j]
+            q_want = q
             q = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                    lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
+            if joint.kind == "ball" and joint.parent > 0:
+                q, base_rot = _pass_up(rig, j, q_want, q, active, rot, pos, wrot, first_bone)
             rot[:, j] = np.where(active[:, None], q, rot[:, j])
         wrot[:, j] = qmul(base_rot, rot[:, j])
 
