@@ -22,18 +22,22 @@ ndarray = ti.types.ndarray
 
 
 @ti.func
-def fk_all(i, parent: ti.template(), offset: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
-           local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template()):
+def fk_below(i, e, pivot: ti.template(), below: ti.template(), parent: ti.template(), offset: ti.template(),
+             root_pos: ti.template(), root_yaw: ti.template(), local_rot: ti.template(), world_pos: ti.template(),
+             world_rot: ti.template()):
+    """FK of the joints a turn of pivot[e] moves: the pivot and its descendants (below[e, j] = 1), in
+    topological order; the other joints keep their pose."""
     q_root = yaw_quat(root_yaw[i])
-    for j in range(parent.shape[0]):
-        p = parent[j]
-        base_pos = root_pos[i]
-        base_rot = q_root
-        if p >= 0:
-            base_pos = world_pos[i, p]
-            base_rot = world_rot[i, p]
-        world_pos[i, j] = base_pos + qrot(base_rot, offset[j])
-        world_rot[i, j] = qmul(base_rot, local_rot[i, j])
+    for j in range(pivot[e], parent.shape[0]):
+        if below[e, j] != 0:
+            p = parent[j]
+            base_pos = root_pos[i]
+            base_rot = q_root
+            if p >= 0:
+                base_pos = world_pos[i, p]
+                base_rot = world_rot[i, p]
+            world_pos[i, j] = base_pos + qrot(base_rot, offset[j])
+            world_rot[i, j] = qmul(base_rot, local_rot[i, j])
 
 
 @ti.func
@@ -61,6 +65,7 @@ def pole_swivel(
     eff_joint: ndarray(dtype=ti.i32, ndim=1),
     pole_joint: ndarray(dtype=ti.i32, ndim=1),
     pivot: ndarray(dtype=ti.i32, ndim=1),
+    below: ndarray(dtype=ti.i32, ndim=2),
     root_pos: ndarray(dtype=vec3, ndim=1),
     root_yaw: ndarray(ndim=1),
     local_rot: ndarray(dtype=vec4, ndim=2),
@@ -76,7 +81,8 @@ def pole_swivel(
 ):
     """Swivel every character's limbs toward their poles (N = root_pos.shape[0]); the pose stays FK(local_rot).
 
-    pole_joint, pivot (E,) int32 (-1: the effector has no limb to swivel); poles (N, E, 3) world; pole_on (N, E)
+    pole_joint, pivot (E,) int32 (-1: the effector has no limb to swivel); below (E, J) int32 1 for the pivot and
+    the joints under it (the ones its turn moves); poles (N, E, 3) world; pole_on (N, E)
     1 where a pole is given; e_pos (N, E) scratch. error (N,) in: the solve's max position error; out: the final pose's.
     """
     for i in range(root_pos.shape[0]):
@@ -103,7 +109,7 @@ def pole_swivel(
                             turned = qnormalize(qmul(qconj(base), qmul(axis_angle(a, ang), qmul(base, old))))
                             local_rot[i, p] = constrain_rotation(kind[p], axes[p, 0], axes[p, 1], turned, lo, hi,
                                                                  lim_p, dof_start[p], cone[p], offset[k].normalized())
-                            fk_all(i, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot)
+                            fk_below(i, e, pivot, below, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot)
                             # keep the turn only if no effector's error grew past what the solve left
                             worse = 0
                             for f in range(eff_joint.shape[0]):
@@ -114,7 +120,7 @@ def pole_swivel(
                                     worse = 1
                             if worse != 0:
                                 local_rot[i, p] = old
-                                fk_all(i, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot)
+                                fk_below(i, e, pivot, below, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot)
                             else:
                                 errors_of(i, eff_joint, targets, weights, world_pos, e_pos)
         err = 0.0

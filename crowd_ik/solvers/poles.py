@@ -27,18 +27,34 @@ def pole_joints(rig) -> tuple[np.ndarray, np.ndarray]:
     return bend, pivot
 
 
+def joints_below(rig, pivot: np.ndarray) -> np.ndarray:
+    """(E, J) int32: 1 for pivot[e] and every joint under it (what a turn of the pivot moves); zeros without one."""
+    parent = rig.arrays["parent"]
+    below = np.zeros((len(pivot), len(parent)), np.int32)
+    for e, p in enumerate(pivot):
+        if p < 0:
+            continue
+        below[e, p] = 1
+        for j in range(int(p) + 1, len(parent)):  # topological order: a parent comes before its children
+            below[e, j] = below[e, parent[j]] if parent[j] >= 0 else 0
+    return below
+
+
 def apply(crowd, req) -> None:
     from crowd_ik.kernels import poles
 
     ra, ti, E, N = crowd.rig_arrays, crowd.ti, crowd.rig.n_effectors, crowd.n
-    arrays = {name: crowd._scratch.get(f"pole_{name}") for name in ("bend", "pivot")}
-    if arrays["bend"] is None or arrays["pivot"] is None:  # the rig's limbs, uploaded once per crowd
-        for name, value in zip(("bend", "pivot"), pole_joints(crowd.rig)):
-            arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, (E,))
+    names = ("bend", "pivot", "below")
+    arrays = {name: crowd._scratch.get(f"pole_{name}") for name in names}
+    if any(a is None for a in arrays.values()):  # the rig's limbs, uploaded once per crowd
+        bend, pivot = pole_joints(crowd.rig)
+        for name, value in zip(names, (bend, pivot, joints_below(crowd.rig, pivot))):
+            arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, value.shape)
             arrays[name].from_numpy(value)
     b = crowd.buffers
     poles.pole_swivel(
         ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
-        ra["dof_start"], ra["eff_joint"], arrays["bend"], arrays["pivot"], *bundles.pose(crowd), b.targets,
+        ra["dof_start"], ra["eff_joint"], arrays["bend"], arrays["pivot"], arrays["below"],
+        *bundles.pose(crowd), b.targets,
         b.weights, b.poles, b.pole_on, crowd.scratch("pole_e_pos", ti.f32, (N, E)), req.tolerance, b.error,
     )
