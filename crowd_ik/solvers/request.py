@@ -58,8 +58,11 @@ def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> t
     except ValueError:
         raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
     nan = np.isnan(arr)
-    none = np.all(nan, axis=-1)
-    partly = np.any(nan, axis=-1) & ~none
+    none, some = nan[..., 0].copy(), nan[..., 0].copy()  # column by column: np.all(axis=-1) of 3 is ~10x slower
+    for c in range(1, shape[-1]):
+        none &= nan[..., c]
+        some |= nan[..., c]
+    partly = some & ~none
     if np.any(partly):
         n, e = np.argwhere(partly)[0]
         raise ValueError(f"{name}: row [{n}, {e}] is partly NaN (all NaN means none; got {arr[n, e].tolist()})")
