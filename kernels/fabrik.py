@@ -317,6 +317,7 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
             c0 = child_start[j]
             c1 = child_start[j + 1]
             first_bone = vec3(0.0)
+            n_active = 0
             if k == 1:
                 # best hinge angle for all active children: atan2(sum w a.(u x v), sum w u.v), u, v projected
                 ax = axes[j, 0]
@@ -336,7 +337,6 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                     h = 0.5 * ti.atan2(s_cross, s_dot)
                     q = qnormalize(qmul(vec4(ax.x * ti.sin(h), ax.y * ti.sin(h), ax.z * ti.sin(h), ti.cos(h)), q))
             else:
-                n_active = 0
                 for cc in range(c0, c1):
                     if acc_w[i, child_list[cc]] > 0.0:
                         n_active += 1
@@ -362,7 +362,8 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
                                       eff_move)
             q_want = q
             q = constrain_rotation(k, axes[j, 0], axes[j, 1], q, lo, hi, lim_p, dof_start[j], cone[j], first_bone)
-            if k == 3 and p > 0:
+            # a sub-base (the humanoid's chest); not with rotation targets, whose twin agreement it breaks (issue 15)
+            if k == 3 and p > 0 and n_active >= 2 and not ti.static(use_rot):
                 q, base_rot, pos_j = pass_up(i, j, q_want, q, parent, offset, kind, axes, lo, hi, lim_p, cone,
                                              dof_start, child_start, first_bone, local_rot, world_pos, world_rot)
                 world_pos[i, j] = pos_j

@@ -253,6 +253,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                 ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
                 c0, c1 = child_start[j], child_start[j + 1]
                 first_bone = vec3(0.0)
+                n_active = 0
                 if k == 1:
                     ax = axes[j, 0]
                     s_cross, s_dot = V(0.0), V(0.0)
@@ -309,7 +310,32 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                 elif k == 2:
                     qx, qy, qz, qw = lim.constrain_universal(qx, qy, qz, qw, axes[j, 0], axes[j, 1], lo, hi, d)
                 else:
+                    ux, uy, uz, uw = qx, qy, qz, qw
                     qx, qy, qz, qw = lim.constrain_ball(qx, qy, qz, qw, lo, hi, lim_p, d, cone[j], first_bone, on)
+                    if n_active >= 2 and p > 0 and kind[p] == 3 and child_start[p + 1] - child_start[p] == 1:
+                        # kernels/fabrik_pass_up.py: the parent takes what the clamp removed
+                        ex, ey, ez, ew = lm.qmul(ux, uy, uz, uw, -qx, -qy, -qz, qw)
+                        moved = on & (ex * ex + ey * ey + ez * ez > 1e-12)
+                        if lm.any_lane(moved):
+                            ax_, ay_, az_, aw_ = lx[s, p], ly[s, p], lz[s, p], lw[s, p]
+                            bn = offset[j].normalized()
+                            nx, ny, nz, nw = lim.constrain_ball(*lm.qmul(ax_, ay_, az_, aw_, ex, ey, ez, ew), lo, hi,
+                                                                lim_p, dof_start[p], cone[p], bn, moved)
+                            nx, ny, nz, nw = ti.select(moved, nx, ax_), ti.select(moved, ny, ay_), \
+                                ti.select(moved, nz, az_), ti.select(moved, nw, aw_)
+                            lx[s, p], ly[s, p], lz[s, p], lw[s, p] = nx, ny, nz, nw
+                            g = parent[p]
+                            cx, cy, cz, cw = lm.qmul(rx[s, g], ry[s, g], rz[s, g], rw[s, g], nx, ny, nz, nw)
+                            bqx, bqy, bqz, bqw = ti.select(moved, cx, bqx), ti.select(moved, cy, bqy), \
+                                ti.select(moved, cz, bqz), ti.select(moved, cw, bqw)
+                            rx[s, p], ry[s, p], rz[s, p], rw[s, p] = bqx, bqy, bqz, bqw
+                            px, py, pz = lm.qrot(bqx, bqy, bqz, bqw, o.x, o.y, o.z)
+                            fx[s, j], fy[s, j], fz[s, j] = bx + px, by + py, bz + pz
+                            wx, wy, wz, ww = lm.qmul(-nx, -ny, -nz, nw, *lm.qmul(ax_, ay_, az_, aw_, ux, uy, uz, uw))
+                            wx, wy, wz, ww = lim.constrain_ball(wx, wy, wz, ww, lo, hi, lim_p, d, cone[j], first_bone,
+                                                                moved)
+                            qx, qy, qz, qw = ti.select(moved, wx, qx), ti.select(moved, wy, qy), \
+                                ti.select(moved, wz, qz), ti.select(moved, ww, qw)
                 lx[s, j], ly[s, j], lz[s, j], lw[s, j] = qx, qy, qz, qw
             rx[s, j], ry[s, j], rz[s, j], rw[s, j] = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
 

@@ -1,5 +1,5 @@
-"""FABRIK's limit clamp with the excess passed up (issue 15): when a ball joint's clamp removes part of the rotation
-its recovery asked for, its parent (a ball joint with this one child, not the root) takes that part, within its own
+"""FABRIK's limit clamp with the excess passed up (issue 15): when a sub-base's (a ball joint with several active
+children) clamp removes part of the rotation its recovery asked for, its parent (a ball joint with this one child, not the root) takes that part, within its own
 limits, and the joint is re-clamped against the turned parent. On the humanoid the chest's small box then lends its
 bend to the spine instead of the solve stalling with the chest against its limit.
 """
@@ -14,7 +14,7 @@ def pass_up(i, j, q_want, q, parent: ti.template(), offset: ti.template(), kind:
             lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
             child_start: ti.template(), first_bone, local_rot: ti.template(), world_pos: ti.template(),
             world_rot: ti.template()):
-    """Ball joint j asked for q_want and was clamped to q. Returns (j's rotation, its new base rotation, its new
+    """Sub-base j (a ball joint) asked for q_want and was clamped to q. Returns (j's rotation, its new base rotation, its new
     position); the parent's local_rot and world_rot are updated in place when it takes the excess."""
     p = parent[j]
     out = q

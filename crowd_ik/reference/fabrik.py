@@ -206,7 +206,7 @@ def _two_bone(rig, j, q, inv_base, pos_j, rot, work, acc):
 
 
 def _pass_up(rig, j, q_want, q, active, rot, pos, wrot, first_bone):
-    """kernels/fabrik_pass_up.py: ball joint j asked for q_want and was clamped to q; its parent (a ball joint with
+    """kernels/fabrik_pass_up.py: sub-base j (a ball joint with several active children) asked for q_want and was clamped to q; its parent (a ball joint with
     this one child, not the root) takes the excess within its limits (rot, wrot, pos updated in place) and j is
     re-clamped under it. Returns (j's rotation, its base rotation)."""
     arr = rig.arrays
@@ -313,8 +313,8 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient, 
             q_want = q
             q = constrain_rotation(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                    lo_all[s : s + joint.dof], hi_all[s : s + joint.dof], joint.cone or 0.0, first_bone)
-            if joint.kind == "ball" and joint.parent > 0:
-                q, base_rot = _pass_up(rig, j, q_want, q, active, rot, pos, wrot, first_bone)
+            if joint.kind == "ball" and joint.parent > 0 and rot_goal is None:  # a sub-base, no rotation targets
+                q, base_rot = _pass_up(rig, j, q_want, q, active & (n_active >= 2), rot, pos, wrot, first_bone)
             rot[:, j] = np.where(active[:, None], q, rot[:, j])
         wrot[:, j] = qmul(base_rot, rot[:, j])
 
