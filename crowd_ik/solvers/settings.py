@@ -127,9 +127,10 @@ LIMITED_LANES_MAX = 4  # kernels/fabrik_limited_lanes.py's width at most: its IR
 
 def limited_lanes() -> int:
     """The lane width of the joint-limited FABRIK lanes: lanes(), at most LIMITED_LANES_MAX; 0 (the general
-    kernel) unless CROWD_IK_LIMITED_LANES=1. Off by default: under Taichi's fast math LLVM compiles the lanes of
-    one packet differently (some vectorised, some not), so a character's float32 rounding depends on its lane
-    and batch == one at a time fails (tests/test_fabrik_lanes.py, the xfail)."""
+    kernel) unless CROWD_IK_LIMITED_LANES=1. Off by default: its cold compile (23 s at 4 lanes) is over the
+    bench's 20 s per kernel, and until commit f840326 LLVM compiled the lanes of one packet differently under
+    fast math, so a character's float32 rounding depended on its lane (since then identical characters agree
+    bit for bit in every lane: tests/test_fabrik_lanes.py, no longer an xfail; not proven for every input)."""
     if os.environ.get("CROWD_IK_LIMITED_LANES", "0") != "1":
         return 0
     return min(lanes(), LIMITED_LANES_MAX)
