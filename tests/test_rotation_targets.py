@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import crowd_ik as cik
-from crowd_ik.geometry import quat as rq
 
 from test_solver_control import assert_batch_equals_one_at_a_time, bent_humanoids
 

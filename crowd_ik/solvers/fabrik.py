@@ -79,7 +79,7 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
     rotations: the full rotation targets (kernels/fabrik_rotation.py), else none."""
     from crowd_ik.kernels import fabrik
 
-    ti, J, E = crowd.ti, crowd.rig.n_joints, crowd.rig.n_effectors
+    ti, J = crowd.ti, crowd.rig.n_joints
     work = crowd.scratch("fabrik_pos", ti.math.vec3, (crowd.n, J))
     acc_w = crowd.scratch("fabrik_w", ti.f32, (crowd.n, J))
     use_rot = int(req is not None and req.rotations is not None)
