@@ -31,13 +31,13 @@ later turn cannot undo them).
 
 import taichi as ti
 
-from crowd_ik.kernels.ccd_rotation import rotation_error, shift_targets, turn_to_rotations
+from crowd_ik.kernels.ccd_rotation import shift_targets, turn_to_rotations
 from crowd_ik.kernels.ccd_steps import (
     constrain_joint, fk_after, hinge_reach_step, hinge_step, joint_active, relative_error, straighten_step,
     swing_step,
 )
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, swing, vec3, vec4, yaw_quat
-from crowd_ik.kernels.rotation_goals import turn_error
+from crowd_ik.kernels.rotation_goals import rotation_error, turn_error
 
 ndarray = ti.types.ndarray
 

@@ -94,14 +94,3 @@ def turn_to_rotations(i, parent: ti.template(), offset: ti.template(), kind: ti.
                             local_rot[i, b] = qb
                             world_rot[i, b] = qmul(bb, qb)
                             fk_after(i, b, parent, offset, local_rot, world_pos, world_rot)
-
-
-@ti.func
-def rotation_error(i, eff_joint: ti.template(), rot_t: ti.template(), rot_w: ti.template(), world_rot: ti.template()):
-    """Max over effectors with a rotation target (rot_w > 0) of 2 acos |<q, q_target>|, radians."""
-    err = 0.0
-    for e in range(eff_joint.shape[0]):
-        if rot_w[i, e] > 0.0:
-            c = ti.abs(world_rot[i, eff_joint[e]].dot(rot_t[i, e]))
-            err = ti.max(err, 2.0 * ti.acos(ti.min(c, 1.0)))
-    return err

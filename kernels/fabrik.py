@@ -11,11 +11,12 @@ therefore always FK(rotations): bone lengths are exact and limits hold after eve
 import taichi as ti
 
 from crowd_ik.kernels.fabrik_pass_up import pass_up
-from crowd_ik.kernels.fabrik_rotation import extended_toward, rotation_error, turn_onto_targets
+from crowd_ik.kernels.fabrik_rotation import extended_toward, turn_onto_targets
 from crowd_ik.kernels.quat import (
     align_axis, axis_angle, best_angle_about, constrain_rotation, qconj, qmul, qnormalize, qrot, safe_normalize,
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
+from crowd_ik.kernels.rotation_goals import rotation_error
 from crowd_ik.solvers.settings import (
     FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
 )

@@ -53,14 +53,3 @@ def turn_onto_targets(i, j, q, inv_base, pos_j, eff_joint: ti.template(), world_
                     ang = twist_angle(qmul(rot_t[i, e], qconj(world_rot[i, k])), a)
                     out = qnormalize(qmul(axis_angle(qrot(inv_base, a), ang), out))
     return out
-
-
-@ti.func
-def rotation_error(i, eff_joint: ti.template(), rot_t: ti.template(), rot_w: ti.template(), world_rot: ti.template()):
-    """Max over effectors with a rotation target (rot_w > 0) of 2 acos |<q, q_target>|, radians."""
-    err = 0.0
-    for e in range(eff_joint.shape[0]):
-        if rot_w[i, e] > 0.0:
-            c = ti.abs(world_rot[i, eff_joint[e]].dot(rot_t[i, e]))
-            err = ti.max(err, 2.0 * ti.acos(ti.min(c, 1.0)))
-    return err
