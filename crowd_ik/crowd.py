@@ -293,7 +293,7 @@ class Crowd:
         if req.root_weight is not None and req.method != DLS:
             self._shift_roots(req)
         SOLVERS[req.method](self, req)
-        if req.root_weight is not None:
+        if req.root_weight is not None and req.method == DLS:  # DLS moved root_pos in place
             self._roots_moved()
         if req.poles is not None:
             pole_hints.apply(self, req)
@@ -303,8 +303,10 @@ class Crowd:
         """FABRIK's and CCD's free root: kernels/root_shift.py moves root_pos, then FK follows."""
         from crowd_ik.kernels import root_shift
 
-        reach = self.scratch("root_reach", self.ti.f32, (self.rig.n_effectors,))
-        reach.from_numpy(np.asarray(self.rig.reach, np.float32))
+        reach = self._scratch.get("root_reach")
+        if reach is None:  # the rig's reach, uploaded once per crowd
+            reach = self.scratch("root_reach", self.ti.f32, (self.rig.n_effectors,))
+            reach.from_numpy(np.asarray(self.rig.reach, np.float32))
         root_shift.shift_roots(reach, self.root_pos, self._base, self.buffers.targets, self.buffers.weights,
                                min(req.root_weight, 1.0), self.dim)
         self._roots_moved()
@@ -319,10 +321,11 @@ class Crowd:
             turn = rotation_error(self.rig, self.world_rot.to_numpy(), req)
         # the others converged (in a game step, nearly all of them)
         left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
-        d = b.targets[left] - self._base[left, None, :]
-        far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
         if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
-            far[:] = False
+            far = np.zeros((left.size, self.rig.n_effectors), bool)
+        else:
+            d = b.targets[left] - self._base[left, None, :]
+            far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
         status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
                                 np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
         return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)
