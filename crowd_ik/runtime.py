@@ -100,8 +100,16 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         raise RuntimeError("arch 'cuda' requested but Taichi could not start its CUDA backend")
     chosen = settings.choose_lanes(resolved, lanes)
     settings.set_lanes(chosen)
-    _STATE.update(arch=resolved, fp=fp, threads=threads, lanes=chosen)
+    _STATE.update(arch=resolved, fp=fp, threads=threads, lanes=chosen, cache_dir=cache_dir)
     return resolved
+
+
+def settings_for_child() -> dict:
+    """init's arguments that give another process the same Taichi runtime as this one (arch, threads,
+    precision, lanes, cache folder): io.render_process starts its child with them, so its kernels compute
+    what this process's would, bit for bit."""
+    ensure_init()
+    return {key: _STATE[key] for key in ("arch", "threads", "fp", "cache_dir", "lanes")}
 
 
 def ensure_init() -> str:

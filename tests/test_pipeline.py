@@ -90,7 +90,7 @@ def test_pipelined_frames_are_the_serial_frames_bit_for_bit(scene, slots, on_wri
         assert np.array_equal(b, c), f"serial frame {k} differs"
     assert pipe.writer_threads == {"crowd-ik-writer"} and serial.writer_threads == {threading.main_thread().name}
     assert stats["frames"] == scene.n_frames and stats["mode"] == "pipelined" and pipe._state == "closed"
-    assert set(stats["stages_ms"]) == {"simulate", "draw", "overlay", "write", "wait"}
+    assert set(stats["stages_ms"]) == {"simulate", "draw", "primitives", "raster", "overlay", "write", "wait"}
     assert all(v >= 0.0 for v in stats["stages_ms"].values()) and stats["cpu_percent"] > 0.0
     renderer = world.renderer
     assert renderer.frame_source is None and not renderer.defer_overlay  # handed back for World.render()

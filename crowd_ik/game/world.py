@@ -329,11 +329,15 @@ class World:
                                      sph["center"], sph["radius"], sph["color"],
                                      trails=prim["trails"] if len(prim["trails"]) else None,
                                      hud_lines=self.hud_lines())
-        ms = 1e3 * (time.perf_counter() - t0)
+        self.record_render(1e3 * (time.perf_counter() - t0))
+        return frame
+
+    def record_render(self, ms: float) -> None:
+        """Count a frame drawn in `ms` milliseconds of this process's time (render(), or the video pipeline's
+        hand-over to its drawing process: io.render_process)."""
         self._phase_ms["render"] = ms
         self.totals["render_ms"] += ms
         self.totals["rendered"] += 1
-        return frame
 
 
 __all__ = ["World", "DT"]

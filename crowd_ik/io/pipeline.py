@@ -33,6 +33,7 @@ its per-stage times and CPU use, which `play --stats` reports.
 
 from __future__ import annotations
 
+import os
 import queue
 import resource
 import threading
@@ -41,6 +42,9 @@ import time
 import numpy as np
 
 DEFAULT_SLOTS = 4  # frame buffers in flight: one being drawn, up to three waiting for or in the writer
+PROCESS_MIN_PIXELS = 640 * 360  # render_process=None: frames at least this big are drawn in a second process
+PROCESS_MIN_FRAMES = 60  # ... in a video at least this long
+PROCESS_START_S = 2.0  # about what the drawing process takes to start on the 2-core machine (warm cache)
 _POLL_S = 0.05  # how often a blocked hand-over checks whether the writer has failed
 
 
@@ -140,28 +144,52 @@ def _children_cpu() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
+def wants_render_process(world) -> bool:
+    """The automatic choice: draw in a second process (io.render_process) when the video is big enough to
+    repay the process's start (imports, Taichi, the raster kernel: about PROCESS_START_S). The environment
+    variable CROWD_IK_RENDER_PROCESS=1 or 0 overrides it (for timing one against the other)."""
+    forced = os.environ.get("CROWD_IK_RENDER_PROCESS", "").strip()
+    if forced in ("0", "1"):
+        return forced == "1"
+    video = world.scene.video
+    return video.width * video.height >= PROCESS_MIN_PIXELS and world.scene.n_frames >= PROCESS_MIN_FRAMES
+
+
 def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAULT_SLOTS,
-                 before=None, after=None, overlay_on_writer: bool = False) -> dict:
+                 before=None, after=None, overlay_on_writer: bool = False,
+                 render_process: bool | None = None) -> dict:
     """Draw every frame `steps` yields (session.frames: it steps `world` and yields k) into `sink`,
     which is closed at the end (finalised on Ctrl-C / SIGTERM, discarded on any other error, as the
     sink's context manager does). before(k) runs before frame k is drawn, after(k) after (main
     thread: clip recording, labels, progress). serial=True draws, paints and writes one frame after
     another on the main thread (the path before the pipeline; the same frames). overlay_on_writer=True
     paints trails and HUD on the writer thread instead of the main thread (the same frames; see the
-    module docstring for why that is not the default).
+    module docstring for why that is not the default). render_process=True draws every frame in a second
+    process (io.render_process: the same frames; the simulation runs meanwhile), False on the main
+    thread, None (default) as wants_render_process(world) decides; serial=True overrides it.
 
     Returns the run's numbers: frames, wall_s, fps, mean milliseconds per frame of each stage
-    (stages_ms: simulate, draw, overlay, write, wait - the main thread waiting for the writer),
-    cpu_s (this process, all threads), encoder_cpu_s (child processes reaped meanwhile: ffmpeg),
-    writer_cpu_s, cpu_percent ((cpu_s + encoder_cpu_s) / wall_s) and the mode.
+    (stages_ms: simulate, draw = primitives (World.primitives and the HUD lines, main thread) + raster
+    (the renderer's kernels and copy, on the main thread or in the drawing process), overlay, write, wait -
+    the main thread waiting for a free buffer), cpu_s (this process, all threads), render_cpu_s (the drawing
+    process), encoder_cpu_s (the other child processes reaped meanwhile: ffmpeg), writer_cpu_s,
+    cpu_percent ((cpu_s + render_cpu_s + encoder_cpu_s) / wall_s) and the mode ("serial", "pipelined",
+    "render process").
     """
-    renderer = world.renderer
+    if render_process is None:
+        render_process = wants_render_process(world)
+    remote = render_process and not serial
+    renderer = None if remote else world.renderer
     t_start, cpu_start, child_start = time.perf_counter(), time.process_time(), _children_cpu()
-    simulate = draw = overlay_s = write_s = 0.0
+    simulate = draw = raster_s = overlay_s = write_s = 0.0
     count = 0
     writer = None
     with sink:
-        if not serial:
+        if remote:
+            from crowd_ik.io.render_process import RenderProcess
+
+            writer = RenderProcess(sink, world.camera, world.max_capsules, world.scene.bullets.pool_size, slots)
+        elif not serial:
             writer = FrameWriter(sink, (world.scene.video.height, world.scene.video.width, 3), slots)
             renderer.frame_source, renderer.defer_overlay = writer.take, overlay_on_writer
         try:
@@ -176,15 +204,22 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
                 if before is not None:
                     before(k)
                 t2 = time.perf_counter()
-                frame = world.render()
+                if remote:
+                    slot = writer.take()
+                    t_slot = time.perf_counter()
+                    writer.submit(slot, world.primitives(), world.camera, world.hud_lines())
+                    world.record_render(1e3 * (time.perf_counter() - t_slot))
+                else:
+                    frame = world.render()
+                    raster_s += 1e-3 * renderer.timings["raster_ms"]
                 t3 = time.perf_counter()
                 draw += t3 - t2
-                if writer is None or not overlay_on_writer:
+                if not remote and (writer is None or not overlay_on_writer):
                     overlay_s += 1e-3 * renderer.timings["overlay_ms"]  # painted inside World.render
                 if writer is None:
                     sink.write(frame)
                     write_s += time.perf_counter() - t3
-                else:
+                elif not remote:
                     writer.submit(frame, renderer.overlay if overlay_on_writer else None)
                 count += 1
                 if after is not None:
@@ -204,31 +239,41 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
             if writer is not None:
                 writer.close(drain=True)
         finally:
-            renderer.frame_source, renderer.defer_overlay, renderer.overlay = None, False, None
+            if renderer is not None:
+                renderer.frame_source, renderer.defer_overlay, renderer.overlay = None, False, None
     wall = time.perf_counter() - t_start
     cpu = time.process_time() - cpu_start
-    encoder = _children_cpu() - child_start
+    render_cpu = writer.child_cpu_s if remote else 0.0
+    encoder = max(_children_cpu() - child_start - render_cpu, 0.0)
     n = max(count, 1)
     wait = 0.0
     if writer is not None:
         write_s, wait = writer.write_s, writer.wait_s
-        draw -= wait  # the renderer waited inside draw for a free buffer
-    if writer is not None and overlay_on_writer:
-        overlay_s = writer.overlay_s
+        draw -= wait  # the main thread waited inside draw for a free buffer
+    if remote:
+        raster_s, overlay_s = writer.raster_s, writer.overlay_s
+        primitives = draw
+        draw += raster_s
     else:
-        draw -= overlay_s  # renderer.render painted the overlay inside draw
+        if writer is not None and overlay_on_writer:
+            overlay_s = writer.overlay_s
+        else:
+            draw -= overlay_s  # renderer.render painted the overlay inside draw
+        primitives = draw - raster_s
     return {
-        "mode": "serial" if serial else "pipelined",
+        "mode": "render process" if remote else "serial" if serial else "pipelined",
         "frames": count,
         "wall_s": wall,
         "fps": count / wall if wall > 0 else 0.0,
-        "stages_ms": {"simulate": 1e3 * simulate / n, "draw": 1e3 * draw / n, "overlay": 1e3 * overlay_s / n,
+        "stages_ms": {"simulate": 1e3 * simulate / n, "draw": 1e3 * draw / n, "primitives": 1e3 * primitives / n,
+                      "raster": 1e3 * raster_s / n, "overlay": 1e3 * overlay_s / n,
                       "write": 1e3 * write_s / n, "wait": 1e3 * wait / n},
         "cpu_s": cpu,
+        "render_cpu_s": render_cpu,
         "encoder_cpu_s": encoder,
-        "writer_cpu_s": writer.cpu_s if writer is not None else 0.0,
-        "cpu_percent": 100.0 * (cpu + encoder) / wall if wall > 0 else 0.0,
+        "writer_cpu_s": writer.cpu_s if writer is not None and not remote else 0.0,
+        "cpu_percent": 100.0 * (cpu + render_cpu + encoder) / wall if wall > 0 else 0.0,
     }
 
 
-__all__ = ["DEFAULT_SLOTS", "FrameWriter", "render_video"]
+__all__ = ["DEFAULT_SLOTS", "FrameWriter", "render_video", "wants_render_process"]

@@ -70,10 +70,13 @@ def _pipeline_lines(p: dict | None) -> list[str]:
     if not p:
         return []
     st = p["stages_ms"]
+    render_cpu = p.get("render_cpu_s", 0.0)
+    total_cpu = p["cpu_s"] + render_cpu + p["encoder_cpu_s"]
+    where = f", drawing {render_cpu:.1f} s" if render_cpu else ""
     return [(f"  video       {p['fps']:.1f} frames/s ({p['mode']}), CPU {p['cpu_percent']:.0f} % "
-             f"(encoder {p['encoder_cpu_s']:.1f} s of {p['cpu_s'] + p['encoder_cpu_s']:.1f} s)"),
-            (f"  stages      simulate {st['simulate']:.1f}, draw {st['draw']:.1f}, overlay {st['overlay']:.1f}, "
-             f"write {st['write']:.1f}, wait {st['wait']:.1f} ms a frame")]
-
+             f"(encoder {p['encoder_cpu_s']:.1f} s{where} of {total_cpu:.1f} s)"),
+            (f"  stages      simulate {st['simulate']:.1f}, draw {st['draw']:.1f} (primitives {st['primitives']:.1f}, "
+             f"raster {st['raster']:.1f}), overlay {st['overlay']:.1f}, write {st['write']:.1f}, "
+             f"wait {st['wait']:.1f} ms a frame")]
 
 __all__ = ["summary", "format_summary"]
