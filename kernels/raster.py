@@ -71,30 +71,33 @@ def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.
     each tile's bit 1 <- bit 0 (drawn last frame: shade_frame repaints it) and bit 0 <- 0.
 
     tiles ((H + TILE - 1) // TILE, (W + TILE - 1) // TILE) int32; all ones clears everything.
-    Image loops here run in parallel over rows with a serial loop along each row: on the CPU
-    backend that is several times faster than a ti.ndrange over pixels (whose flat index is
-    divided back into (row, column) for every pixel)."""
+    The image loops run in parallel over tiles or pieces of rows with serial loops inside: on the
+    CPU backend that is several times faster than a ti.ndrange over pixels (whose flat index is
+    divided back into (row, column) for every pixel), and gives Taichi's 512-iteration tasks
+    (raster_geometry.SPAN) enough items to share among the cores."""
     clear_tiles(keys, shadow, tiles)
 
 
 @ti.func
 def clear_tiles(keys: ti.template(), shadow: ti.template(), tiles: ti.template()):
-    """clear_buffers' loop (a top-level loop of the kernel it is inlined in: parallel over tile rows)."""
+    """clear_buffers' loop (a top-level loop of the kernel it is inlined in: parallel over tiles)."""
     height = keys.shape[0]
     width = keys.shape[1]
-    for ty in range(tiles.shape[0]):
-        for tx in range(tiles.shape[1]):
-            flags = tiles[ty, tx]
-            if flags & 1:
-                y0 = ty * TILE
-                x0 = tx * TILE
-                for py in range(y0, ti.min(y0 + TILE, height)):
-                    for px in range(x0, ti.min(x0 + TILE, width)):
-                        keys[py, px] = empty_key()
-                for i in range(y0 // 2, ti.min((y0 + TILE) // 2, shadow.shape[0])):
-                    for j in range(x0 // 2, ti.min((x0 + TILE) // 2, shadow.shape[1])):
-                        shadow[i, j] = 0
-            tiles[ty, tx] = (flags & 1) << 1
+    columns = tiles.shape[1]
+    for item in range(tiles.shape[0] * columns):
+        ty = item // columns
+        tx = item % columns
+        flags = tiles[ty, tx]
+        if flags & 1:
+            y0 = ty * TILE
+            x0 = tx * TILE
+            for py in range(y0, ti.min(y0 + TILE, height)):
+                for px in range(x0, ti.min(x0 + TILE, width)):
+                    keys[py, px] = empty_key()
+            for i in range(y0 // 2, ti.min((y0 + TILE) // 2, shadow.shape[0])):
+                for j in range(x0 // 2, ti.min((x0 + TILE) // 2, shadow.shape[1])):
+                    shadow[i, j] = 0
+        tiles[ty, tx] = (flags & 1) << 1
 
 
 @ti.kernel

@@ -36,6 +36,10 @@ SHADOW_MAX_HEIGHT = 12.0  # primitives wholly above this cast no shadow
 SHADOW_SCALE = 65535  # shadow buffer units per unit darkness
 MIN_PIXEL_RADIUS = 0.72  # pixels; > sqrt(2)/2 so every primitive in view covers a pixel centre
 EMPTY_ID = 0x7FFFFFFF  # id field of an empty key
+# Taichi's CPU backend runs a parallel loop in tasks of at least 512 consecutive iterations (its adaptive
+# block_dim), so a loop over fewer than 1024 items (the 720 rows of a frame, 926 primitives) leaves a core idle
+# for most of it; the image passes loop over SPAN-pixel pieces of rows instead (a multiple of LANES).
+SPAN = 64
 TILE = 16  # pixels: the side of the square tiles whose dirty flags let frames skip untouched ground
 BIG = 1.0e30
 LANES = 8  # pixels per packet of the background pass (8 float32 lanes: an AVX2 register; faster than 16 or 4 here)

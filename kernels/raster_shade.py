@@ -6,8 +6,8 @@ with its bilinearly sampled soft shadows and fog."""
 import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (
-    AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LIGHT_X, LIGHT_Y,
-    LIGHT_Z, LANES, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPECULAR, TILE, cam_vec,
+    AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LANES, LIGHT_X,
+    LIGHT_Y, LIGHT_Z, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPAN, SPECULAR, TILE, cam_vec,
     capsule_normal, fog, ground_hit, line_cover, pixel_dir, pixel_ray, row3,
 )
 
@@ -159,18 +159,18 @@ def background_lanes(cam: ti.template(), px0, py):
 
 
 @ti.func
-def background_row(cam: ti.template(), background: ti.template(), py):
-    """background[py, :, :] for the camera: background_lanes over whole packets, background_pixel on the
-    last W % LANES pixels."""
-    width = background.shape[1]
-    packets = width // LANES
+def background_span(cam: ti.template(), background: ti.template(), py, x0, x1):
+    """background[py, x0:x1, :] for the camera: background_lanes over whole packets, background_pixel on the
+    last (x1 - x0) % LANES pixels."""
+    packets = (x1 - x0) // LANES
     for p in range(packets):
-        b0, b1, b2 = background_lanes(cam, p * LANES, py)
+        px0 = x0 + p * LANES
+        b0, b1, b2 = background_lanes(cam, px0, py)
         for k in ti.static(range(LANES)):
-            background[py, p * LANES + k, 0] = b0[k]
-            background[py, p * LANES + k, 1] = b1[k]
-            background[py, p * LANES + k, 2] = b2[k]
-    for px in range(packets * LANES, width):
+            background[py, px0 + k, 0] = b0[k]
+            background[py, px0 + k, 1] = b1[k]
+            background[py, px0 + k, 2] = b2[k]
+    for px in range(x0 + packets * LANES, x1):
         b0, b1, b2 = background_pixel(cam, px, py)
         background[py, px, 0] = b0
         background[py, px, 1] = b1
@@ -188,8 +188,12 @@ def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dty
     camera; shade_frame then finishes a ground pixel as GROUND (1 - shadow) [1] + SKY_HORIZON [2],
     which is fog(GROUND (1 - GRID_DARK grid) (1 - shadow), distance) rearranged.
     """
-    for py in range(background.shape[0]):
-        background_row(cam, background, py)
+    width = background.shape[1]
+    spans = (width + SPAN - 1) // SPAN
+    for item in range(background.shape[0] * spans):
+        py = item // spans
+        x0 = (item % spans) * SPAN
+        background_span(cam, background, py, x0, ti.min(x0 + SPAN, width))
 
 
 @ti.func
@@ -252,16 +256,18 @@ def shade_frame(
 def shade_tiles(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
                 shadow: ti.template(), background: ti.template(), tiles: ti.template(), frame: ti.template(),
                 depth: ti.template()):
-    """shade_frame's loop (the top-level, parallel loop of the kernel it is inlined in)."""
+    """shade_frame's loop (the top-level, parallel loop of the kernel it is inlined in), over (row, tile
+    column) pairs."""
     width = keys.shape[1]
-    for py in range(keys.shape[0]):
-        i0, i1, fv = shadow_row(shadow, py)
-        ty = py // TILE
-        for tx in range(tiles.shape[1]):
-            if tiles[ty, tx] != 0:
-                for px in range(tx * TILE, ti.min(tx * TILE + TILE, width)):
-                    shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py,
-                                background[py, px, 0], background[py, px, 1], background[py, px, 2])
+    columns = tiles.shape[1]
+    for item in range(keys.shape[0] * columns):
+        py = item // columns
+        tx = item % columns
+        if tiles[py // TILE, tx] != 0:
+            i0, i1, fv = shadow_row(shadow, py)
+            for px in range(tx * TILE, ti.min(tx * TILE + TILE, width)):
+                shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py,
+                            background[py, px, 0], background[py, px, 1], background[py, px, 2])
 
 
 @ti.kernel
@@ -286,11 +292,17 @@ def shade_frame_background(
 @ti.func
 def shade_all(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
               shadow: ti.template(), background: ti.template(), frame: ti.template(), depth: ti.template()):
-    """shade_frame_background's loop (the top-level, parallel loop of the kernel it is inlined in): each row's
-    background is computed and stored, then read back (from the cache) to shade the row."""
-    for py in range(keys.shape[0]):
-        background_row(cam, background, py)
+    """shade_frame_background's loop (the top-level, parallel loop of the kernel it is inlined in), over
+    SPAN-pixel pieces of rows: each piece's background is computed and stored, then read back (from the
+    cache) to shade it."""
+    width = keys.shape[1]
+    spans = (width + SPAN - 1) // SPAN
+    for item in range(keys.shape[0] * spans):
+        py = item // spans
+        x0 = (item % spans) * SPAN
+        x1 = ti.min(x0 + SPAN, width)
+        background_span(cam, background, py, x0, x1)
         i0, i1, fv = shadow_row(shadow, py)
-        for px in range(keys.shape[1]):
+        for px in range(x0, x1):
             shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py,
                         background[py, px, 0], background[py, px, 1], background[py, px, 2])
