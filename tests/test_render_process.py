@@ -76,7 +76,7 @@ def test_a_bad_frame_in_the_child_is_raised_in_the_main_process_and_discards_the
 def test_a_render_process_that_dies_is_an_error_not_a_hang(scene):
     world, steps = _world(scene)
     sink = ListSink(size=(160, 96))
-    rp = RenderProcess(sink, world.camera, world.max_capsules, scene.bullets.pool_size, slots=2)
+    rp = RenderProcess().open(sink, world.camera, world.max_capsules, scene.bullets.pool_size, slots=2)
     try:
         next(steps)
         slot = rp.take()
@@ -111,20 +111,27 @@ def test_an_interrupt_writes_every_frame_handed_to_the_render_process(scene, cla
 
 
 def test_the_automatic_choice_and_its_override(scene, monkeypatch):
-    world, _ = _world(scene)
     monkeypatch.delenv("CROWD_IK_RENDER_PROCESS", raising=False)
-    assert not wants_render_process(world)  # 160x96: drawing it in-process is cheaper than starting a process
+    assert not wants_render_process(scene)  # 160x96: drawing it in-process is cheaper than starting a process
     video = dataclasses.replace(scene.video, width=1280, height=720, frames=300)
     big = dataclasses.replace(scene, video=video)
-    world.scene = big
-    assert wants_render_process(world)
+    assert wants_render_process(big)
+    assert not wants_render_process(dataclasses.replace(big, video=dataclasses.replace(video, frames=20)))
     monkeypatch.setenv("CROWD_IK_RENDER_PROCESS", "0")
-    assert not wants_render_process(world)
+    assert not wants_render_process(big)
     monkeypatch.setenv("CROWD_IK_RENDER_PROCESS", "1")
-    world.scene = scene
-    assert wants_render_process(world)
+    assert wants_render_process(scene)
+
+
+def test_a_render_process_refuses_bad_slots_and_closes_without_opening(scene):
+    from crowd_ik.game.world import World
+
+    rp = RenderProcess()
     with pytest.raises(ValueError, match="slots"):
-        RenderProcess(ListSink(), world.camera, 10, 10, slots=1)
+        rp.open(ListSink(), World(scene).camera, 10, 10, slots=1)
+    rp.close()
+    rp.close()  # twice is harmless
+    assert not rp._proc.is_alive() and rp.child_cpu_s > 0.0  # it had started Taichi and loaded its kernels
 
 
 def test_play_through_the_render_process_writes_the_in_process_frames(scene, classic, tmp_path):

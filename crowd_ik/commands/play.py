@@ -118,6 +118,27 @@ def run(args) -> int:
     out = output_path(args, scene)
     check_outputs(args, scene, out)
     arch = runtime.init(arch=args.arch, threads=args.threads)
+    early = _start_render_process(args, scene)
+    try:
+        return _play(args, scene, log, out, arch, early, t_start)
+    finally:
+        if early is not None:
+            early.close(drain=False)  # render_video closed it already, unless something failed before
+
+
+def _start_render_process(args, scene):
+    """A RenderProcess for a video that the pipeline will draw in a second process, started now so that it
+    gets ready while the World is built (io.render_process); None otherwise."""
+    from crowd_ik.io.pipeline import wants_render_process
+
+    if args.still is not None or getattr(args, "serial", False) or not wants_render_process(scene):
+        return None
+    from crowd_ik.io.render_process import RenderProcess
+
+    return RenderProcess()
+
+
+def _play(args, scene, log, out, arch, early, t_start) -> int:
     from crowd_ik.game.world import World
     from crowd_ik.io.video import open_sink, write_png
 
@@ -163,7 +184,8 @@ def run(args) -> int:
             with labels, _progress(scene.n_frames, scene.name) as bar:
                 sink = open_sink(out, scene.video.fps, (scene.video.width, scene.video.height), force=args.force)
                 pipeline = render_video(world, steps, sink, serial=getattr(args, "serial", False),
-                                        before=(lambda k: clip.add(world)) if clip is not None else None, after=after)
+                                        before=(lambda k: clip.add(world)) if clip is not None else None, after=after,
+                                        render_process=early if early is not None else False)
             rendered = pipeline["frames"]
     except KeyboardInterrupt:
         if clip is not None and clip.count:

@@ -144,20 +144,20 @@ def _children_cpu() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def wants_render_process(world) -> bool:
-    """The automatic choice: draw in a second process (io.render_process) when the video is big enough to
-    repay the process's start (imports, Taichi, the raster kernel: about PROCESS_START_S). The environment
-    variable CROWD_IK_RENDER_PROCESS=1 or 0 overrides it (for timing one against the other)."""
+def wants_render_process(scene) -> bool:
+    """The automatic choice for `scene`: draw in a second process (io.render_process) when its video is big
+    enough to repay the process's start (imports, Taichi, the frame kernel: about PROCESS_START_S of CPU).
+    The environment variable CROWD_IK_RENDER_PROCESS=1 or 0 overrides it (for timing one against the other)."""
     forced = os.environ.get("CROWD_IK_RENDER_PROCESS", "").strip()
     if forced in ("0", "1"):
         return forced == "1"
-    video = world.scene.video
-    return video.width * video.height >= PROCESS_MIN_PIXELS and world.scene.n_frames >= PROCESS_MIN_FRAMES
+    video = scene.video
+    return video.width * video.height >= PROCESS_MIN_PIXELS and scene.n_frames >= PROCESS_MIN_FRAMES
 
 
 def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAULT_SLOTS,
                  before=None, after=None, overlay_on_writer: bool = False,
-                 render_process: bool | None = None) -> dict:
+                 render_process=None) -> dict:
     """Draw every frame `steps` yields (session.frames: it steps `world` and yields k) into `sink`,
     which is closed at the end (finalised on Ctrl-C / SIGTERM, discarded on any other error, as the
     sink's context manager does). before(k) runs before frame k is drawn, after(k) after (main
@@ -165,8 +165,10 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     another on the main thread (the path before the pipeline; the same frames). overlay_on_writer=True
     paints trails and HUD on the writer thread instead of the main thread (the same frames; see the
     module docstring for why that is not the default). render_process=True draws every frame in a second
-    process (io.render_process: the same frames; the simulation runs meanwhile), False on the main
-    thread, None (default) as wants_render_process(world) decides; serial=True overrides it.
+    process (io.render_process: the same frames; the simulation runs meanwhile), and so does a
+    RenderProcess started earlier (play starts it before building the World, to overlap their starts); False
+    draws on the main thread, None (default) as wants_render_process(world.scene) decides; serial=True
+    draws on the main thread whatever it says (and closes a RenderProcess given).
 
     Returns the run's numbers: frames, wall_s, fps, mean milliseconds per frame of each stage
     (stages_ms: simulate, draw = primitives (World.primitives and the HUD lines, main thread) + raster
@@ -176,9 +178,14 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     cpu_percent ((cpu_s + render_cpu_s + encoder_cpu_s) / wall_s) and the mode ("serial", "pipelined",
     "render process").
     """
+    from crowd_ik.io.render_process import RenderProcess
+
     if render_process is None:
-        render_process = wants_render_process(world)
-    remote = render_process and not serial
+        render_process = wants_render_process(world.scene)
+    started = render_process if isinstance(render_process, RenderProcess) else None
+    if started is not None and serial:
+        started.close(drain=False)
+    remote = bool(render_process) and not serial
     renderer = None if remote else world.renderer
     t_start, cpu_start, child_start = time.perf_counter(), time.process_time(), _children_cpu()
     simulate = draw = raster_s = overlay_s = write_s = 0.0
@@ -186,9 +193,8 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     writer = None
     with sink:
         if remote:
-            from crowd_ik.io.render_process import RenderProcess
-
-            writer = RenderProcess(sink, world.camera, world.max_capsules, world.scene.bullets.pool_size, slots)
+            writer = (started or RenderProcess()).open(sink, world.camera, world.max_capsules,
+                                                        world.scene.bullets.pool_size, slots)
         elif not serial:
             writer = FrameWriter(sink, (world.scene.video.height, world.scene.video.width, 3), slots)
             renderer.frame_source, renderer.defer_overlay = writer.take, overlay_on_writer

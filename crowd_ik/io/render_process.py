@@ -38,7 +38,7 @@ import numpy as np
 from crowd_ik.io.pipeline import DEFAULT_SLOTS
 
 _POLL_S = 0.05  # how often a blocked take() checks whether the writer has failed
-_START_TIMEOUT_S = 300.0  # the child's first answer (imports, Taichi start, kernel load or compile)
+_START_TIMEOUT_S = 600.0  # the child's first answer (imports, Taichi start, kernel load or a cold compile)
 _CAPSULE_FLOATS = 10  # a (3), b (3), radius, colour (3)
 _SPHERE_FLOATS = 7  # centre (3), radius, colour (3)
 
@@ -65,34 +65,62 @@ class _Layout:
         return caps, sph, frame
 
 
-def _serve(shm_name: str, layout: _Layout, camera, init_kwargs: dict, inbox, outbox) -> None:
-    """The child: draw each frame it is sent into its slot, answer in order; stop at None or EOF."""
+def _serve(init_kwargs: dict, inbox, outbox) -> None:
+    """The child: start Taichi and load the renderer's kernels, then draw each frame it is sent into its
+    slot and answer in order; stop at None or at the end of the pipe."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    shm = shared_memory.SharedMemory(name=shm_name)
     try:
-        _draw_loop(shm, layout, camera, init_kwargs, inbox, outbox)
+        _draw_loop(init_kwargs, inbox, outbox)
     finally:
-        try:
-            shm.close()
-        except BufferError:
-            pass  # a view still exported; the process ends here anyway
         outbox.send(("cpu", time.process_time()))
         outbox.close()
 
 
-def _draw_loop(shm, layout: _Layout, camera, init_kwargs: dict, inbox, outbox) -> None:
+def _warm_renderer():
+    """Load (or compile) both variants of the frame kernel on a 16x16 frame, while the main process builds
+    its World: a new camera's frame, then a frame with the same camera."""
+    from crowd_ik.view.render import Camera, Renderer
+
+    tiny = Renderer(Camera((0.0, 1.0, 3.0), (0.0, 1.0, 0.0), 50.0, 16, 16), 1, 1)
+    for _ in range(2):
+        tiny.render(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), np.full(1, 0.1, np.float32),
+                    np.zeros((1, 3), np.float32))
+
+
+def _draw_loop(init_kwargs: dict, inbox, outbox) -> None:
     try:
         from crowd_ik import runtime
         from crowd_ik.view.render import Renderer
 
         runtime.init(**init_kwargs)
-        renderer = Renderer(camera, layout.max_capsules, layout.max_spheres)
+        _warm_renderer()
     except BaseException as exc:  # noqa: BLE001  (reported to the main process)
         outbox.send(("error", -1, type(exc).__name__, _one_line(exc)))
         return
     outbox.send(("ready",))
-    slots = [layout.views(shm.buf, s) for s in range(layout.slots)]
+    try:
+        msg = inbox.recv()
+    except EOFError:
+        return
+    if msg is None:
+        return
+    _, shm_name, layout, camera = msg
+    shm = shared_memory.SharedMemory(name=shm_name)
+    try:
+        renderer = Renderer(camera, layout.max_capsules, layout.max_spheres)
+        _draw_frames(renderer, [layout.views(shm.buf, s) for s in range(layout.slots)], inbox, outbox)
+    except BaseException as exc:  # noqa: BLE001  (reported to the main process)
+        outbox.send(("error", -1, type(exc).__name__, _one_line(exc)))
+    finally:
+        renderer = None
+        try:
+            shm.close()
+        except BufferError:
+            pass  # a view is still exported; the process ends here anyway
+
+
+def _draw_frames(renderer, slots: list, inbox, outbox) -> None:
     while True:
         try:
             msg = inbox.recv()
@@ -110,6 +138,8 @@ def _draw_loop(shm, layout: _Layout, camera, init_kwargs: dict, inbox, outbox) -
             outbox.send(("done", s, renderer.timings["raster_ms"], renderer.timings["overlay_ms"]))
         except Exception as exc:  # noqa: BLE001  (reported to the main process)
             outbox.send(("error", s, type(exc).__name__, _one_line(exc)))
+        finally:
+            renderer.frame_source = None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -117,43 +147,61 @@ def _one_line(exc: BaseException) -> str:
 
 
 class RenderProcess:
-    """A drawing child process and the writer thread that puts its frames into `sink`, in order.
+    """A drawing child process and the writer thread that puts its frames into a sink, in order.
 
-    take() lends a free slot (waits while all are in flight); submit(slot, prim, camera, hud_lines) fills it
-    with World.primitives()' capsules, spheres and trails and hands it to the child; close() waits until
-    every frame handed over is written (drain) or drops the rest (drain=False), then stops the child.
-    Times (seconds): `raster_s` and `overlay_s` (the child's), `write_s` (the writer's), `wait_s` (the main
-    thread waiting for a free slot); `child_cpu_s` the child's CPU time once closed.
+    RenderProcess() starts the child at once (imports, Taichi, the frame kernel loaded), so that it can get
+    ready while the main process builds its World; open(sink, camera, max_capsules, max_spheres, slots)
+    then allocates the shared slots and starts the writer. take() lends a free slot (waits while all are in
+    flight); submit(slot, prim, camera, hud_lines) fills it with World.primitives()' capsules, spheres and
+    trails and hands it to the child; close() waits until every frame handed over is written (drain) or
+    drops the rest (drain=False), then stops the child (also without open()). Times (seconds): `raster_s`
+    and `overlay_s` (the child's), `write_s` (the writer's), `wait_s` (the main thread waiting for a free
+    slot); `child_cpu_s` the child's CPU time once closed.
+
+    The child is started with multiprocessing's "spawn" (a fork would copy this process's Taichi runtime),
+    so a script that uses it must guard its entry point with `if __name__ == "__main__":`.
     """
 
-    def __init__(self, sink, camera, max_capsules: int, max_spheres: int, slots: int = DEFAULT_SLOTS):
+    def __init__(self):
         from crowd_ik import runtime
 
+        ctx = multiprocessing.get_context("spawn")
+        self._inbox_r, self._inbox = ctx.Pipe(duplex=False)
+        self._outbox, self._outbox_w = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_serve, name="crowd-ik-render", daemon=True,
+                                 args=(runtime.settings_for_child(), self._inbox_r, self._outbox_w))
+        self._proc.start()
+        self._inbox_r.close()
+        self._outbox_w.close()
+        self._shm = self._views = self._thread = None
+        self._free: queue.Queue = queue.Queue()
+        self._error: BaseException | None = None
+        self._discard = threading.Event()
+        self._sent = 0
+        self._closed = False
+        self.frames = 0
+        self.raster_s = self.overlay_s = self.write_s = self.wait_s = self.child_cpu_s = 0.0
+
+    def open(self, sink, camera, max_capsules: int, max_spheres: int, slots: int = DEFAULT_SLOTS) -> RenderProcess:
+        """Allocate `slots` shared slots for frames of camera's size and these maxima, and start writing into
+        sink; returns self."""
         if isinstance(slots, bool) or not isinstance(slots, int) or slots < 2:
             raise ValueError(f"RenderProcess: slots: expected an integer >= 2 (got {slots!r})")
+        if self._shm is not None:
+            raise RuntimeError("RenderProcess: already open")
         self.sink = sink
         self.layout = _Layout(int(max_capsules), int(max_spheres), camera.height, camera.width, slots)
         self._shm = shared_memory.SharedMemory(create=True, size=self.layout.size)
         self._views = [self.layout.views(self._shm.buf, s) for s in range(slots)]
-        ctx = multiprocessing.get_context("spawn")  # a fork would copy this process's Taichi runtime
-        self._inbox_r, self._inbox = ctx.Pipe(duplex=False)
-        self._outbox, self._outbox_w = ctx.Pipe(duplex=False)
-        self._proc = ctx.Process(target=_serve, name="crowd-ik-render", daemon=True,
-                                 args=(self._shm.name, self.layout, camera, runtime.settings_for_child(),
-                                       self._inbox_r, self._outbox_w))
-        self._proc.start()
-        self._inbox_r.close()
-        self._outbox_w.close()
-        self._free: queue.Queue = queue.Queue()
         for s in range(slots):
             self._free.put(s)
-        self._error: BaseException | None = None
-        self._discard = threading.Event()
-        self._sent = 0
-        self.frames = 0
-        self.raster_s = self.overlay_s = self.write_s = self.wait_s = self.child_cpu_s = 0.0
+        try:
+            self._inbox.send(("open", self._shm.name, self.layout, camera))
+        except OSError:
+            pass  # the child is gone: the writer reports it at the first hand-over
         self._thread = threading.Thread(target=self._run, name="crowd-ik-writer", daemon=True)
         self._thread.start()
+        return self
 
     # ---------------------------------------------------------------- writer thread
     def _run(self) -> None:
@@ -193,7 +241,7 @@ class RenderProcess:
                 t0 = time.perf_counter()
                 self.sink.write(self._views[s][2])
                 self.write_s += time.perf_counter() - t0
-                self.raster_s += 1e-3 * (raster_ms - overlay_ms)
+                self.raster_s += 1e-3 * raster_ms
                 self.overlay_s += 1e-3 * overlay_ms
                 self.frames += 1
         except BaseException as exc:  # noqa: BLE001  (handed to the main thread)
@@ -244,6 +292,9 @@ class RenderProcess:
         """Stop after every frame handed over is written (drain) or at once (drain=False); raise the child's
         or writer's error, if any, when draining. An interrupt while draining drops the frames not yet written
         and is raised once the child has stopped."""
+        if self._closed:
+            return
+        self._closed = True
         if not drain:
             self._discard.set()
         interrupted = None
@@ -251,21 +302,30 @@ class RenderProcess:
             self._inbox.send(None)
         except OSError:
             pass  # the child is gone; the writer has seen it
-        while self._thread.is_alive():
+        while self._thread is not None and self._thread.is_alive():
             try:
                 self._thread.join()
             except KeyboardInterrupt as exc:
                 self._discard.set()
                 interrupted = exc
+        if self._thread is None:  # never opened: the child's last word is its CPU time
+            while self._outbox.poll(10):
+                try:
+                    msg = self._outbox.recv()
+                except (EOFError, OSError):
+                    break
+                if msg[0] == "cpu":
+                    self.child_cpu_s = msg[1]
         self._inbox.close()
         self._outbox.close()
         self._proc.join(timeout=10)
         if self._proc.is_alive():
             self._proc.kill()
             self._proc.join()
-        self._views = None  # the slot views export the shared block: drop them before closing it
-        self._shm.close()
-        self._shm.unlink()
+        if self._shm is not None:
+            self._views = None  # the slot views export the shared block: drop them before closing it
+            self._shm.close()
+            self._shm.unlink()
         if drain:
             self._check()
         if interrupted is not None:
