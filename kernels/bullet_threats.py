@@ -85,27 +85,33 @@ def threat_pass(
     threat_point: ndarray(dtype=vec3, ndim=1),
     threat_dir: ndarray(dtype=vec3, ndim=1),
     n_slots: ti.i32,
+    serial: ti.template(),
 ):
     """predict_bullets + build_grid of the live bullets' paths pos -> pos + vel horizon grown by
     reach (segment id = slot) + find_threats, in one launch. Valid when total[0] <= entries.shape[0]
     afterwards; otherwise the caller grows entries and launches again. Slots n_slots and up were never
     used (BulletPool keeps that mark), so the loops over bullets stop there."""
+    ti.loop_config(serialize=serial)
     for c in range(cell_count.shape[0]):
         cell_count[c] = 0
+    ti.loop_config(serialize=serial)
     for p in range(n_slots):
         if alive[p] != 0:
             q0 = pos[p]
             q1 = q0 + vel[p] * horizon
             x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, reach)
             count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 0, cell_count, cell_count)  # unmasked: no mask
+    ti.loop_config(serialize=serial)
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
+    ti.loop_config(serialize=serial)
     for p in range(n_slots):
         if alive[p] != 0:
             q0 = pos[p]
             q1 = q0 + vel[p] * horizon
             x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, reach)
             fill_box(p, x0, z0, x1, z1, ox, oz, cell, nx, nz, 0, cell_count, cursor, entries)
+    ti.loop_config(serialize=serial)
     for n in range(points.shape[0]):
         if total[0] <= entries.shape[0]:  # else the grid overflowed: the caller launches again
             find_threat(n, points, char_alive, pos, vel, alive, horizon, reach, ox, oz, cell, nx, nz, cell_start,

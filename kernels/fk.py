@@ -7,6 +7,7 @@ import taichi as ti
 
 from crowd_ik.kernels.local_arrays import get3, get4, put
 from crowd_ik.kernels.quat import joint_angles, joint_quat, qmul, qrot, yaw_quat, vec3, vec4
+from crowd_ik.kernels.serial_loops import JOINT, serial_for
 
 ndarray = ti.types.ndarray
 
@@ -24,8 +25,15 @@ def joint_fk_local(j, p, base_root, offset: ti.template(), rot: ti.template(), p
     return base_rot
 
 
+def forward_kinematics(parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, which, n_joints: int):
+    """world_pos, world_rot of the characters `which` (K,) from their roots and local_rot (fk_kernel), on the
+    launching thread when K characters are few (kernels/serial_loops.py)."""
+    fk_kernel(parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, which, n_joints,
+              serial_for(which.shape[0] * n_joints, JOINT))
+
+
 @ti.kernel
-def forward_kinematics(
+def fk_kernel(
     parent: ndarray(dtype=ti.i32, ndim=1),
     offset: ndarray(dtype=vec3, ndim=1),
     root_pos: ndarray(dtype=vec3, ndim=1),
@@ -35,6 +43,7 @@ def forward_kinematics(
     world_rot: ndarray(dtype=vec4, ndim=2),
     which: ndarray(dtype=ti.i32, ndim=1),
     n_joints: ti.template(),
+    serial: ti.template(),
 ):
     """world_pos (N, J, 3), world_rot (N, J, 4) from root_pos (N, 3), root_yaw (N,) and local_rot (N, J, 4), for the
     characters listed in `which` (K,).
@@ -44,6 +53,7 @@ def forward_kinematics(
     built in local arrays (n_joints = J, a Python int) and written out once (see kernels/local_arrays.py):
     1.9 -> 1.5 ms for 10,000 humanoids.
     """
+    ti.loop_config(serialize=serial)
     for k in range(which.shape[0]):
         i = which[k]
         pos = ti.Matrix.zero(ti.f32, n_joints, 3)

@@ -53,6 +53,7 @@ def plant_legs(
     feet: ndarray(dtype=vec3, ndim=2),
     yaw: ndarray(ndim=1),
     active: ndarray(dtype=ti.i32, ndim=1),
+    serial: ti.template(),
 ):
     """Both legs of each active character n put its ankles on feet[n] (N, 2, 3) exactly (when in reach).
 
@@ -64,6 +65,7 @@ def plant_legs(
     sole's normal (its local +y) to world up. Out of reach, the leg stretches toward the footprint.
     Writes local_rot (N, J, 4) of hip, knee and ankle and world_rot / world_pos of hip..toe.
     """
+    ti.loop_config(serialize=serial)
     for n in range(world_pos.shape[0]):
         if active[n] != 0:
             q_pelvis = world_rot[n, 0]
@@ -130,6 +132,7 @@ def separate(
     reach: ti.f32,
     steer: ndarray(dtype=vec2, ndim=1),
     push: ndarray(dtype=vec2, ndim=1),
+    serial: ti.template(),
 ):
     """Separation of M bodies on the ground: points (M, 2) (x, z) metres, radius (M,) metres, kind (M,):
     0 ignored, 1 a walker (moved), 2 an obstacle (pushes, never moved).
@@ -144,6 +147,7 @@ def separate(
     apart along (cos a, sin a), a = 2.4 min(i, j), signed so that the two go opposite ways.
     Non-walkers get zeros.
     """
+    ti.loop_config(serialize=serial)
     for i in range(points.shape[0]):
         s = vec2(0.0, 0.0)
         q = vec2(0.0, 0.0)

@@ -23,6 +23,7 @@ def limb_capsules(
     joints: ndarray(dtype=vec3, ndim=2),
     pose_box: ndarray(ndim=2),
     box: ndarray(ndim=2),
+    serial: ti.template(),
 ):
     """From the joint positions world_pos (N, J, 3), one pass per character:
 
@@ -35,6 +36,7 @@ def limb_capsules(
     can reach (BulletPool.advance owner_boxes).
     """
     n_bones = bone_parent.shape[0]
+    ti.loop_config(serialize=serial)
     for n in range(world_pos.shape[0]):
         for j in range(world_pos.shape[1]):
             joints[n, j] = world_pos[n, j]
@@ -81,6 +83,7 @@ def dodge_targets(
     scale: ti.f32,
     targets: ndarray(dtype=vec3, ndim=2),
     roots_out: ndarray(dtype=vec3, ndim=1),
+    serial: ti.template(),
 ):
     """The IK targets (N, E, 3) and roots (N, 3) of characters holding a dodge (World._solve_characters).
 
@@ -94,6 +97,7 @@ def dodge_targets(
     chest (N, 3) moved by 0.8 lean and the duck, and effectors with planted_slot[e] = k >= 0 are
     held at planted[n, k]. Otherwise roots_out = roots.
     """
+    ti.loop_config(serialize=serial)
     for n in range(rest_targets.shape[0]):
         ln = lean[n]
         d = duck[n]

@@ -78,6 +78,7 @@ def pole_swivel(
     e_pos: ndarray(ndim=2),
     tolerance: ti.f32,
     error: ndarray(ndim=1),
+    serial: ti.template(),
 ):
     """Swivel every character's limbs toward their poles (N = root_pos.shape[0]); the pose stays FK(local_rot).
 
@@ -85,6 +86,7 @@ def pole_swivel(
     the joints under it (the ones its turn moves); poles (N, E, 3) world; pole_on (N, E)
     1 where a pole is given; e_pos (N, E) scratch. error (N,) in: the solve's max position error; out: the final pose's.
     """
+    ti.loop_config(serialize=serial)
     for i in range(root_pos.shape[0]):
         errors_of(i, eff_joint, targets, weights, world_pos, e_pos)
         for e in range(eff_joint.shape[0]):

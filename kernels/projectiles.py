@@ -91,6 +91,7 @@ def prepare_limbs(
     entries: ndarray(dtype=ti.i32, ndim=1),
     n_slots: ti.i32,
     stride: ti.i32,
+    serial: ti.template(),
 ):
     """Everything a step's collisions need before the bullets move, in one launch:
     mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
@@ -100,12 +101,15 @@ def prepare_limbs(
     at n_slots (slots beyond were never used). stride > 0 says that capsule c belongs to owner c // stride
     (each owner's capsules in one block): the limb loops then visit the reachable owners' blocks only,
     instead of every capsule to look up its owner."""
+    ti.loop_config(serialize=serial)
     for c in range(mask.shape[0]):
         mask[c] = 0
         cell_count[c] = 0
+    ti.loop_config(serialize=serial)
     for p in range(n_slots):
         mark_bullet(p, pos, vel, alive, dt, pad, ox, oz, cell, nx, nz, mask)
         bullet_char[p] = -1
+    ti.loop_config(serialize=serial)
     for n in range(owner_box.shape[0]):
         reachable[n] = reachable_owner(n, owner_box, char_alive, ox, oz, cell, nx, nz, mask)
         hit_key[n] = ti.i64(NO_HIT)
@@ -114,19 +118,24 @@ def prepare_limbs(
     # loops one runs zero times
     by_capsule = a0.shape[0] if stride == 0 else 0
     by_owner = owner_box.shape[0] if stride > 0 else 0
+    ti.loop_config(serialize=serial)
     for c in range(by_capsule):
         if reachable[owner[c]] != 0:
             count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask, cell_count)
+    ti.loop_config(serialize=serial)
     for n in range(by_owner):
         if reachable[n] != 0:
             for c in range(n * stride, (n + 1) * stride):
                 count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask,
                            cell_count)
+    ti.loop_config(serialize=serial)
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
+    ti.loop_config(serialize=serial)
     for c in range(by_capsule):
         if reachable[owner[c]] != 0:
             fill_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cursor, entries)
+    ti.loop_config(serialize=serial)
     for n in range(by_owner):
         if reachable[n] != 0:
             for c in range(n * stride, (n + 1) * stride):
@@ -174,16 +183,19 @@ def advance_bullets(
     vel_out: ndarray(dtype=vec3, ndim=1),
     alive_out: ndarray(dtype=ti.i32, ndim=1),
     n_slots: ti.i32,
+    serial: ti.template(),
 ):
     """One sub-step in one launch: integrate_bullets (dt) then collide_bullets for each bullet (a
     bullet's collision reads only its own new segment), then apply_hits; with export != 0 also
     export_bullets into pos_out, vel_out, alive_out. Only slots below n_slots (the others were never used: their
     exported values stay as they are, dead)."""
+    ti.loop_config(serialize=serial)
     for p in range(n_slots):
         integrate_bullet(p, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
         collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, s, radius, owner, char_alive, ox, oz, cell,
                        nx, nz, cell_start, entries, substep, n_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
                        bullet_point)
+    ti.loop_config(serialize=serial)
     for p in range(n_slots):
         apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)
         if export != 0:

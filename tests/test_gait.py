@@ -2,6 +2,7 @@
 swings arc between footprints, the crowd keeps apart, and nobody stands still while walking."""
 
 import numpy as np
+import pytest
 
 from crowd_ik.crowd import Crowd
 from crowd_ik.game.body import Body
@@ -59,7 +60,8 @@ def test_plant_legs_matches_twin_and_puts_ankles_on_their_footprints():
     assert np.all(np.sum((knees - 0.5 * (hips + feet[on])) * fwd, axis=2) > 0.0)
 
 
-def test_separate_matches_brute_force_twin():
+@pytest.mark.parametrize("serial", [False, True])
+def test_separate_matches_brute_force_twin(serial):
     rng = np.random.default_rng(3)
     m = 300
     pts = rng.uniform(-6.0, 6.0, (m, 2)).astype(np.float32)
@@ -77,7 +79,7 @@ def test_separate_matches_brute_force_twin():
     np.cumsum(np.bincount(key, minlength=int(cells.prod())), out=start[1:])
     steer, push = np.zeros_like(pts), np.zeros_like(pts)
     gk.separate(pts, radius, kind, order, start, float(lo[0]), float(lo[1]), cell, int(cells[0]), int(cells[1]),
-                reach, steer, push)
+                reach, steer, push, serial)
     want_steer, want_push = ref.separate(pts, radius, kind, reach)
     np.testing.assert_allclose(steer, want_steer, atol=1e-5)
     np.testing.assert_allclose(push, want_push, atol=1e-5)

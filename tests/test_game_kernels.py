@@ -1,6 +1,7 @@
 """kernels/game_kernels.py against its NumPy twin, and the World's use of it."""
 
 import numpy as np
+import pytest
 
 from crowd_ik.game import characters
 from crowd_ik.game.body import LEG_SLACK, Body
@@ -11,7 +12,8 @@ from crowd_ik.rig import Rig
 from crowd_ik.scene import load_scene, scene_with
 
 
-def test_limb_capsules_match_twin():
+@pytest.mark.parametrize("serial", [False, True])
+def test_limb_capsules_match_twin(serial):
     rig = Rig.humanoid()
     rng = np.random.default_rng(0)
     n, J = 7, rig.n_joints
@@ -23,7 +25,7 @@ def test_limb_capsules_match_twin():
     a, b = np.zeros((n * (J - 1), 3), np.float32), np.zeros((n * (J - 1), 3), np.float32)
     joints = np.zeros_like(world_pos)
     pose_box, box = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
-    gk.limb_capsules(world_pos, parent, radius, prev_box, a, b, joints, pose_box, box)
+    gk.limb_capsules(world_pos, parent, radius, prev_box, a, b, joints, pose_box, box, serial)
     want = ref.limb_capsules(world_pos, parent, radius, prev_box)
     for got, exp in zip((a, b, joints, pose_box, box), want):
         np.testing.assert_array_equal(got, exp)
@@ -74,7 +76,8 @@ def _dodge_inputs(body, n, seed):
     return rest, lean, duck, guard, roots, yaw, planted, chest
 
 
-def test_dodge_targets_match_twin_and_keep_feet_planted():
+@pytest.mark.parametrize("serial", [False, True])
+def test_dodge_targets_match_twin_and_keep_feet_planted(serial):
     body = Body(Rig.humanoid())
     n, E = 50, body.rig.n_effectors
     rest, lean, duck, guard, roots, yaw, planted, chest = _dodge_inputs(body, n, 1)
@@ -85,7 +88,7 @@ def test_dodge_targets_match_twin_and_keep_feet_planted():
     consts = (body.lean, body.duck, slot, body.hands.astype(np.int32), body.hip_offset.astype(np.float32), 1,
               body.pelvis_share, characters.MAX_PELVIS_SHIFT, LEG_SLACK * body.leg_length, body.scale)
     targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
-    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts, targets, out_roots)
+    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts, targets, out_roots, serial)
     want_t, want_r = ref.dodge_targets(rest, lean, duck, guard, roots, yaw, planted, chest, *consts)
     np.testing.assert_allclose(targets, want_t, atol=2e-5)
     np.testing.assert_allclose(out_roots, want_r, atol=2e-5)
@@ -111,7 +114,7 @@ def test_dodge_targets_of_a_chain_follow_lean_and_duck_only():
               0, 0.0, characters.MAX_PELVIS_SHIFT, 1.0, 1.0)
     placeholder = np.zeros((n, 1, 3), np.float32)
     targets, out_roots = np.zeros((n, E, 3), np.float32), np.zeros((n, 3), np.float32)
-    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts, targets, out_roots)
+    gk.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts, targets, out_roots, False)
     want_t, want_r = ref.dodge_targets(rest, lean, duck, guard, roots, yaw, placeholder, chest, *consts)
     np.testing.assert_allclose(targets, want_t, atol=2e-5)
     np.testing.assert_array_equal(out_roots, roots)

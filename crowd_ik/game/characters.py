@@ -29,6 +29,7 @@ from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import character_layout
 from crowd_ik.game.limbs import Limbs
 from crowd_ik.geometry.vectors import UP, normalize
+from crowd_ik.kernels.serial_loops import BOX, serial_for
 
 THREAT_HORIZON = 0.7  # s: how far ahead bullets are predicted
 THREAT_REACH = 0.7  # m: a bullet passing this close to the chest is a threat (and, if it misses, a dodge)
@@ -219,7 +220,7 @@ class Characters:
         targets, roots = self._targets_buf, self._roots_buf
         gk.dodge_targets(self.rest_targets, np.ascontiguousarray(self.lean, f32), np.ascontiguousarray(self.duck, f32),
                          np.ascontiguousarray(self.guard, f32), self.roots, self.yaw, self._planted_arg,
-                         self.ref_points, *self._dodge_consts, targets, roots)
+                         self.ref_points, *self._dodge_consts, targets, roots, serial_for(self.n, BOX))
         weights = self._weights * self.alive[:, None]
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)

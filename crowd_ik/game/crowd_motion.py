@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from crowd_ik.game import streams
+from crowd_ik.kernels.serial_loops import serial_for
 
 WALK_FACTOR = (0.7, 1.3)  # each bystander's preferred speed is walk_speed times a factor in this range
 WANDER_RADIUS = 3.0  # m (times the scale): the next goal lies within this distance
@@ -155,7 +156,7 @@ class CrowdMotion:
         steer = np.zeros_like(pts)
         push = np.zeros_like(pts)
         gk.separate(pts, radius, kind, order, start, float(lo[0]), float(lo[1]), float(cell), int(cells[0]),
-                    int(cells[1]), float(reach), steer, push)
+                    int(cells[1]), float(reach), steer, push, serial_for(len(pts)))
         n = self.n
         self.steer = steer[:n].astype(np.float64)
         self.pos += push[:n]

@@ -24,6 +24,7 @@ import numpy as np
 
 from crowd_ik.game.body import Body
 from crowd_ik.geometry.vectors import yaw_rotate
+from crowd_ik.kernels.serial_loops import POSE, serial_for
 
 STEP_LENGTH = 0.30  # m: step length (one foot's advance over the body) at zero speed, times the body's scale
 STEP_PER_SPEED = 0.30  # s: extra step length per m/s of speed (m per m/s)
@@ -167,4 +168,4 @@ def plant_legs(crowd, legs: np.ndarray, feet: np.ndarray, yaw: np.ndarray, activ
     ra = crowd.rig_arrays
     gk.plant_legs(crowd.world_pos, crowd.world_rot, crowd.local_rot, ra["offset"], legs,
                   np.ascontiguousarray(feet, np.float32), np.ascontiguousarray(yaw, np.float32),
-                  np.ascontiguousarray(active, np.int32))
+                  np.ascontiguousarray(active, np.int32), serial_for(crowd.n, POSE))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.kernels.serial_loops import POSE, serial_for
 from crowd_ik.solvers import bundles
 
 
@@ -57,4 +58,5 @@ def apply(crowd, req) -> None:
         ra["dof_start"], ra["eff_joint"], arrays["bend"], arrays["pivot"], arrays["below"],
         *bundles.pose(crowd), b.targets,
         b.weights, b.poles, b.pole_on, crowd.scratch("pole_e_pos", ti.f32, (N, E)), req.tolerance, b.error,
+        serial_for(N, POSE),
     )
