@@ -145,3 +145,19 @@ def test_play_through_the_render_process_writes_the_in_process_frames(scene, cla
     assert "(render process)" in run.stdout
     got = read_frames(out)
     assert len(got) == len(classic) and all(np.array_equal(a, b) for a, b in zip(got, classic))
+
+
+def test_play_draws_in_process_when_labels_read_the_z_buffer(scene, monkeypatch):
+    from argparse import Namespace
+
+    from crowd_ik.commands.play import _start_render_process
+
+    monkeypatch.setenv("CROWD_IK_RENDER_PROCESS", "1")
+    base = dict(still=None, serial=False, labels=None)
+    for change in ({"labels": "l.jsonl"}, {"serial": True}, {"still": 3}):
+        assert _start_render_process(Namespace(**{**base, **change}), scene) is None
+    rp = _start_render_process(Namespace(**base), scene)
+    try:
+        assert isinstance(rp, RenderProcess)
+    finally:
+        rp.close()

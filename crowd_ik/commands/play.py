@@ -128,10 +128,13 @@ def run(args) -> int:
 
 def _start_render_process(args, scene):
     """A RenderProcess for a video that the pipeline will draw in a second process, started now so that it
-    gets ready while the World is built (io.render_process); None otherwise."""
+    gets ready while the World is built (io.render_process); None otherwise: a still, --serial, and
+    --labels, whose visibility test reads each frame's z-buffer in this process right after it is drawn."""
     from crowd_ik.io.pipeline import wants_render_process
 
-    if args.still is not None or getattr(args, "serial", False) or not wants_render_process(scene):
+    if args.still is not None or getattr(args, "serial", False) or args.labels is not None:
+        return None
+    if not wants_render_process(scene):
         return None
     from crowd_ik.io.render_process import RenderProcess
 
