@@ -45,6 +45,7 @@ class Bullets:
         # dies or the slot is reused
         self.players = np.zeros(P, bool)
         self._next_serial = 0
+        self._alive_chars = None
 
     def begin_step(self) -> None:
         """This step's positions become the previous ones (for drawing between steps and for sweeps)."""
@@ -71,11 +72,18 @@ class Bullets:
         a, b = limbs.current
         prev_a, prev_b = limbs.previous
         hits = self.pool.advance(dt, bl.gravity, bl.drag, bl.lifetime, a, b, limbs.radius, limbs.owner,
-                                 characters.alive.astype(np.int32), characters.n, prev_a=prev_a, prev_b=prev_b,
+                                 self._char_alive(characters.alive), characters.n, prev_a=prev_a, prev_b=prev_b,
                                  owner_boxes=limbs.owner_box, export_to=(self.pos, self.vel, self._alive_i32),
                                  owner_stride=characters.body.n_bones)
         np.not_equal(self._alive_i32, 0, out=self.alive)
         return hits
+
+    def _char_alive(self, alive: np.ndarray) -> np.ndarray:
+        """The characters' alive flags as int32, in a buffer kept from step to step (the pool's launches stay bound)."""
+        if self._alive_chars is None or self._alive_chars.shape != alive.shape:
+            self._alive_chars = np.zeros(alive.shape, np.int32)
+        np.copyto(self._alive_chars, alive)
+        return self._alive_chars
 
     def player_hits(self, shooters):
         """The player's live bullets against the standing shooters (module docstring), after `advance`.

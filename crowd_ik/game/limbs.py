@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.game.body import Body
+from crowd_ik.prepared import prepared
 from crowd_ik.kernels.serial_loops import BOX, serial_for
 
 
@@ -60,8 +61,8 @@ class Limbs:
         self.now = 1 - self.now
         a, b = self.caps[self.now]
         joints = self._joint_bufs[1] if self.joints is self._joint_bufs[0] else self._joint_bufs[0]
-        gk.limb_capsules(self.crowd.world_pos, self._bone_parent, self._bone_radius, prev_box, a, b, joints,
-                         self.pose_box[self.now], self.owner_box, serial_for(self.crowd.n, BOX))
+        prepared(gk.limb_capsules)(self.crowd.world_pos, self._bone_parent, self._bone_radius, prev_box, a, b, joints,
+                                   self.pose_box[self.now], self.owner_box, serial_for(self.crowd.n, BOX))
         self.joints = joints
 
     @property

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from crowd_ik.kernels.serial_loops import CELL, CHEAP, serial_for
+from crowd_ik.prepared import prepared
 from crowd_ik.runtime import ensure_init
 
 MAX_GRID_CELLS = 256  # per axis: the serial prefix sum over at most 65,536 cells stays cheap
@@ -356,12 +357,17 @@ class BulletPool:
         if self._threat_out is None or self._threat_out[0].shape[0] != n:
             self._threat_out = (np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
                                 np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32))
+            self._threat_in = (np.zeros((n, 3), np.float32), np.zeros(n, np.int32))
+        if isinstance(points, np.ndarray) and isinstance(char_alive, np.ndarray):  # into buffers the launch keeps bound
+            np.copyto(self._threat_in[0], points)
+            np.copyto(self._threat_in[1], char_alive)
+            points, char_alive = self._threat_in
         g = self.threat_grid
         serial = serial_for(n * CHEAP + self._used + g.nx * g.nz * CELL, 1.0)
         for _ in range(2):  # a second launch only when the grid's entry list had to grow
-            kp.threat_pass(points, char_alive, self.pos, self.vel, self.alive, horizon, reach, *g.geometry,
-                           g.cell_count, g.cell_start, g.cursor, g.total, g.entries, *self._threat_out, self._used,
-                           serial)
+            prepared(kp.threat_pass)(points, char_alive, self.pos, self.vel, self.alive, horizon, reach, *g.geometry,
+                                     g.cell_count, g.cell_start, g.cursor, g.total, g.entries, *self._threat_out,
+                                     self._used, serial)
             if not g.grow(int(g.total[0])):
                 break
         return Threats(*(o.copy() for o in self._threat_out))
@@ -380,12 +386,13 @@ class BulletPool:
         n_chars = _length(owner_boxes)
         by_capsule = 0 if owner_stride else _length(a0)  # stride 0: the limb loops visit every capsule
         serial = serial_for((n_chars + by_capsule) * CHEAP + self._used + grid.nx * grid.nz * CELL, 1.0)
+        launch = prepared(kp.prepare_limbs)
         for _ in range(2):
             out[0] = 0
-            kp.prepare_limbs(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
-                             owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
-                             self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
-                             grid.total, grid.entries, self._used, owner_stride, serial)
+            launch(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
+                   owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
+                   self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
+                   grid.total, grid.entries, self._used, owner_stride, serial)
             if not grid.grow(int(grid.total[0])):
                 break
         return min(max(int(out[0]), 1), max_substeps)
@@ -459,11 +466,12 @@ class BulletPool:
                 dt, gravity, drag, lifetime = step_args
                 last = j == substeps - 1 and export_to is not None
                 out = (self.pos, self.vel, self.alive) if export_to is None else export_to  # written when `last`
-                kp.advance_bullets(self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps, gravity, drag,
-                                   lifetime, self.far, self.radius, a0, b0, a1, b1, s, radii, owner, char_alive,
-                                   *grid.geometry, grid.cell_start, grid.entries, j, substeps, self.hit_key,
-                                   self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
-                                   self.hit_bullet, int(last), *out, self._used, serial_for(self._used))
+                prepared(kp.advance_bullets)(
+                    self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps, gravity, drag, lifetime,
+                    self.far, self.radius, a0, b0, a1, b1, s, radii, owner, char_alive, *grid.geometry,
+                    grid.cell_start, grid.entries, j, substeps, self.hit_key, self.bullet_key, self.bullet_char,
+                    self.bullet_toi, self.bullet_point, self.hit_bullet, int(last), *out, self._used,
+                    serial_for(self._used))
                 continue
             kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
                                char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.prepared import prepared
 from crowd_ik.kernels.serial_loops import POSE, serial_for
 from crowd_ik.solvers import bundles
 
@@ -53,7 +54,7 @@ def apply(crowd, req) -> None:
             arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, value.shape)
             arrays[name].from_numpy(value)
     b = crowd.buffers
-    poles.pole_swivel(
+    prepared(poles.pole_swivel)(
         ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
         ra["dof_start"], ra["eff_joint"], arrays["bend"], arrays["pivot"], arrays["below"],
         *bundles.pose(crowd), b.targets,

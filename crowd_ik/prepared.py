@@ -1,0 +1,128 @@
+"""Prepared launches: a kernel's array arguments bound once, so a launch with the same arrays skips Taichi's
+per-argument Python work.
+
+Taichi 1.7 spends ~5-10 us of Python per array argument on every launch (the template key, type checks, building
+the launch context), which for the game's 10-40-argument kernels is most of a small step's launch. `prepared(k)`
+(one per kernel) is called like the kernel `k`. It keeps the last few launch contexts keyed by the identity of the
+call's array arguments (ti.ndarrays and C-contiguous NumPy arrays) and its template values; the arrays are weakly
+referenced, and a context whose arrays died is dropped, so an array born at a reused id never meets it and none
+is kept alive. On a match it sets the arrays (one C++ call each: a launch overwrites an ndarray's slot with its
+raw pointer) and the scalars, and launches the compiled kernel. A first call, other arrays and anything it does
+not handle (a return value, unsigned or vector scalars, a Fortran-ordered array, a gradient) go through the
+ordinary call, which also compiles and checks; arrays are bound the second time they are seen together, so
+fresh temporaries cost nothing more. Bound arrays must not be resized in place (NumPy's ndarray.resize). The
+prepared launch runs the same compiled kernel on the same memory, so results are identical (tests/test_prepared.py).
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections import OrderedDict
+
+import numpy as np
+
+CONTEXTS = 8  # launch contexts kept per kernel (the game alternates a few array sets: two limb poses, exports)
+
+
+class Prepared:
+    """`kernel` (a @ti.kernel) with its launch contexts kept; call it with the kernel's arguments."""
+
+    def __init__(self, kernel):
+        import taichi as ti
+        from taichi.lang.util import cook_dtype
+        from taichi.types import ndarray_type, primitive_types
+        from taichi.types.utils import is_signed
+
+        self.kernel = kernel
+        self._primal = primal = kernel._primal
+        self._slots = []  # per argument: (kind, launch index); kind "array", "float", "int", "template" or None
+        index = 0
+        for arg in primal.arguments:
+            anno = arg.annotation
+            if isinstance(anno, ti.template):
+                self._slots.append(("template", None))
+                continue
+            if isinstance(anno, ndarray_type.NdarrayType):
+                kind = "array"
+            elif id(anno) in primitive_types.real_type_ids:
+                kind = "float"
+            elif id(anno) in primitive_types.integer_type_ids and is_signed(cook_dtype(anno)):
+                kind = "int"
+            else:
+                kind = None
+            self._slots.append((kind, index))
+            index += 1
+        self._plain = primal.return_type is not None or any(kind is None for kind, _ in self._slots)
+        self._contexts = OrderedDict()  # key -> (context, compiled kernel, program, weak refs, ndarrays, externals)
+        self._seen = OrderedDict()  # keys launched once the ordinary way
+
+    def __call__(self, *args):
+        if self._plain or len(args) != len(self._slots):
+            return self.kernel(*args)
+        key = tuple(id(a) if kind == "array" else a for (kind, _), a in zip(self._slots, args)
+                    if kind == "array" or kind == "template")
+        entry = self._contexts.get(key)
+        if entry is not None and any(ref() is None for ref in entry[3]):  # an array died: its id may be reused
+            del self._contexts[key]
+            entry = None
+        if entry is None:
+            self.kernel(*args)  # compiles, checks the arguments and launches
+            if key in self._seen:
+                self._bind(key, args)
+            else:
+                self._seen[key] = None
+                while len(self._seen) > CONTEXTS:
+                    self._seen.popitem(last=False)
+            return None
+        self._contexts.move_to_end(key)
+        ctx, data, prog, _, ndarrays, externals = entry
+        for i, arr in ndarrays:
+            ctx.set_arg_ndarray(i, arr)
+        for i, ptr, nbytes, shape in externals:
+            ctx.set_arg_external_array_with_shape(i, ptr, nbytes, shape, 0)
+        for (kind, i), a in zip(self._slots, args):
+            if kind == "float":
+                ctx.set_arg_float((i,), float(a))
+            elif kind == "int":
+                ctx.set_arg_int((i,), int(a))
+        prog.launch_kernel(data, ctx)
+        return None
+
+    def _bind(self, key, args) -> None:
+        """A launch context for these arrays (the ordinary call has just compiled and checked them)."""
+        from taichi.lang import impl
+        from taichi.lang._ndarray import Ndarray
+        from taichi.types import primitive_types
+
+        primal = self._primal
+        refs, ndarrays, externals = [], [], []
+        for (kind, i), a, arg in zip(self._slots, args, primal.arguments):
+            if kind != "array":
+                continue
+            if isinstance(a, Ndarray) and a.grad is None:
+                ndarrays.append(((i,), a.arr))
+            elif isinstance(a, np.ndarray) and a.flags.c_contiguous:
+                dtype = arg.annotation.dtype
+                element_dim = 0 if dtype is None or id(dtype) in primitive_types.type_ids else dtype.ndim
+                externals.append(((i,), int(a.ctypes.data), a.nbytes, tuple(a.shape[:a.ndim - element_dim])))
+            else:
+                return  # stays ordinary
+            refs.append(weakref.ref(a))
+        instance, _ = primal.mapper.lookup(args)
+        t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
+        prog = impl.get_runtime().prog
+        data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
+        self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
+        while len(self._contexts) > CONTEXTS:
+            self._contexts.popitem(last=False)
+
+
+_PREPARED: dict = {}
+
+
+def prepared(kernel) -> Prepared:
+    """The process's Prepared of `kernel` (made on first use)."""
+    p = _PREPARED.get(kernel)
+    if p is None:
+        p = _PREPARED[kernel] = Prepared(kernel)
+    return p

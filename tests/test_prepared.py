@@ -1,0 +1,67 @@
+"""crowd_ik.prepared: a prepared launch gives what the ordinary launch gives, follows new arrays and scalars,
+and drops the contexts of arrays that died."""
+
+import gc
+
+import numpy as np
+
+from crowd_ik import runtime
+from crowd_ik.prepared import Prepared
+
+
+def _separate_inputs(rng, m=60):
+    pts = rng.uniform(-4.0, 4.0, (m, 2)).astype(np.float32)
+    radius = rng.uniform(0.2, 0.4, m).astype(np.float32)
+    kind = rng.choice([0, 1, 1, 2], m).astype(np.int32)
+    order = np.arange(m, dtype=np.int32)
+    start = np.array([0, m], np.int32)  # one cell holds everybody
+    return pts, radius, kind, order, start
+
+
+def test_prepared_launch_matches_the_ordinary_one_as_inputs_change():
+    runtime.ensure_init()
+    from crowd_ik.kernels import gait_kernels as gk
+
+    rng = np.random.default_rng(0)
+    pts, radius, kind, order, start = _separate_inputs(rng)
+    steer, push = np.zeros_like(pts), np.zeros_like(pts)
+    launch = Prepared(gk.separate)
+    for k in range(5):
+        pts[:] = rng.uniform(-4.0, 4.0, pts.shape)  # the same buffers, new values; the scalar reach changes too
+        reach = 0.8 + 0.1 * k
+        launch(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, reach, steer, push, True)
+        got = steer.copy(), push.copy()
+        steer[:] = push[:] = np.nan
+        gk.separate(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, reach, steer, push, True)
+        np.testing.assert_array_equal(got[0], steer)
+        np.testing.assert_array_equal(got[1], push)
+    assert len(launch._contexts) == 1  # bound on the second call, launched prepared from then on
+
+
+def test_prepared_launch_follows_other_arrays_and_forgets_dead_ones():
+    runtime.ensure_init()
+    from crowd_ik.kernels import gait_kernels as gk
+
+    rng = np.random.default_rng(1)
+    launch = Prepared(gk.separate)
+    for _ in range(2):
+        pts, radius, kind, order, start = _separate_inputs(rng)
+        steer, push = np.zeros_like(pts), np.zeros_like(pts)
+        want_s, want_p = np.zeros_like(pts), np.zeros_like(pts)
+        for _ in range(3):
+            launch(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, steer, push, False)
+        gk.separate(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, want_s, want_p, False)
+        np.testing.assert_array_equal(steer, want_s)
+        np.testing.assert_array_equal(push, want_p)
+    assert len(launch._contexts) == 2
+    del pts, steer, push
+    gc.collect()
+    # a context whose arrays died is dropped when its key comes up again, and a fresh array set still works
+    assert all(any(ref() is None for ref in entry[3]) for entry in launch._contexts.values())
+    pts = rng.uniform(-4.0, 4.0, (len(radius), 2)).astype(np.float32)
+    steer, push = np.zeros_like(pts), np.zeros_like(pts)
+    for _ in range(3):
+        launch(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, steer, push, False)
+    want_s, want_p = np.zeros_like(pts), np.zeros_like(pts)
+    gk.separate(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, want_s, want_p, False)
+    np.testing.assert_array_equal(push, want_p)
