@@ -54,7 +54,7 @@ import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND: the renderer's too)
     _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, capsule_hit, dir_origin,
-    effective_radius, empty_key, mark_tiles, pixel_range, row3, shadow_soft, shadow_value, sphere_bounds,
+    effective_radius, empty_key, mark_tiles, primitive_parts, pixel_range, row3, shadow_soft, shadow_value, sphere_bounds,
 )
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
     shade_all, shade_background, shade_frame, shade_frame_background, shade_tiles,
@@ -218,10 +218,14 @@ def splat_shadows(
 @ti.func
 def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius: ti.template(), n,
                shadow: ti.template(), tiles: ti.template()):
-    """splat_shadows's loop (the top-level, parallel loop of the kernel it is inlined in)."""
+    """splat_shadows's loop (the top-level, parallel loop of the kernel it is inlined in), over
+    primitive_parts(n) items per primitive, each doing every parts-th texel row of its box."""
     height = shadow.shape[0]
     width = shadow.shape[1]
-    for i in range(n):
+    parts = primitive_parts(n)
+    for item in range(n * parts):
+        i = item % n
+        part = item // n
         eye = cam_vec(cam, 0)
         right = cam_vec(cam, 3)
         up = cam_vec(cam, 6)
@@ -263,11 +267,12 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
             if s_lo[0] <= s_hi[0]:
                 xr = pixel_range((s_lo[0] - 0.5) * 0.5, (s_hi[0] - 0.5) * 0.5, width)
                 yr = pixel_range((s_lo[1] - 0.5) * 0.5, (s_hi[1] - 0.5) * 0.5, height)
-                if xr[0] <= xr[1] and yr[0] <= yr[1]:
+                if part == 0 and xr[0] <= xr[1] and yr[0] <= yr[1]:
                     mark_tiles(tiles, ti.max(2 * yr[0] - 1, 0), ti.min(2 * yr[1] + 2, 2 * height - 1),
                                ti.max(2 * xr[0] - 1, 0), ti.min(2 * xr[1] + 2, 2 * width - 1))
                 d0 = dir_origin(cam)
-                for py in range(yr[0], yr[1] + 1):
+                py = yr[0] + part
+                while py <= yr[1]:
                     for px in range(xr[0], xr[1] + 1):
                         d = d0 + right * (2.0 * px + 0.5) - up * (2.0 * py + 0.5)
                         if d[1] < 0.0:
@@ -276,6 +281,7 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
                             level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
                             if level > shadow[py, px]:  # levels only rise
                                 ti.atomic_max(shadow[py, px], level)
+                    py += parts
 
 
 @ti.kernel

@@ -38,11 +38,12 @@ MIN_PIXEL_RADIUS = 0.72  # pixels; > sqrt(2)/2 so every primitive in view covers
 EMPTY_ID = 0x7FFFFFFF  # id field of an empty key
 # Taichi's CPU backend runs a parallel loop in tasks of at least 512 consecutive iterations (its adaptive
 # block_dim), so a loop over fewer than 1024 items (the 720 rows of a frame, 926 primitives) leaves a core idle
-# for most of it; the image passes loop over SPAN-pixel pieces of rows instead (a multiple of LANES).
+# for most of it; the image passes loop over SPAN-pixel pieces of rows instead.
 SPAN = 64
+PRIMITIVE_ITEMS = 3072  # item count a primitive loop reaches by splitting primitives (when n is small)
+MAX_PARTS = 4
 TILE = 16  # pixels: the side of the square tiles whose dirty flags let frames skip untouched ground
 BIG = 1.0e30
-LANES = 8  # pixels per packet of the background pass (8 float32 lanes: an AVX2 register; faster than 16 or 4 here)
 _CORNER_X = (0.0, 1.0, 1.0, 0.0)  # the footprint rectangle's corners in order around it
 _CORNER_Z = (0.0, 0.0, 1.0, 1.0)
 
@@ -236,6 +237,13 @@ def fog(col, dist):
     f = 1.0 - ti.exp(-(dist / FOG_DISTANCE) * (dist / FOG_DISTANCE))
     horizon = ti.Vector([SKY_HORIZON[0], SKY_HORIZON[1], SKY_HORIZON[2]])
     return col + (horizon - col) * f
+
+
+@ti.func
+def primitive_parts(n):
+    """Items per primitive of a primitive loop: enough for PRIMITIVE_ITEMS items in all when n is small (a
+    loop over fewer than 1024 items runs as at most two of Taichi's tasks, see SPAN), at most MAX_PARTS."""
+    return ti.min(ti.max((PRIMITIVE_ITEMS + n - 1) // ti.max(n, 1), 1), MAX_PARTS)
 
 
 @ti.func

@@ -6,7 +6,7 @@ with its bilinearly sampled soft shadows and fog."""
 import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (
-    AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LANES, LIGHT_X,
+    AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LIGHT_X,
     LIGHT_Y, LIGHT_Z, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPAN, SPECULAR, TILE, cam_vec,
     capsule_normal, fog, ground_hit, line_cover, pixel_dir, pixel_ray, row3,
 )
@@ -110,67 +110,9 @@ def background_pixel(cam: ti.template(), px, py):
 
 
 @ti.func
-def background_lanes(cam: ti.template(), px0, py):
-    """background_pixel for the LANES pixels (px0 + k, py), k < LANES, as LANES-vectors (b0, b1, b2).
-
-    The same operations in the same order on each lane as background_pixel, with its branches as
-    selects (both sides are computed, and a side's value is kept only where background_pixel takes
-    it), so LLVM can pack the lanes into SIMD registers and the values are the same bit for bit:
-    division and square root are correctly rounded whatever the vector width, and the kernels'
-    fast-math flags (reassoc, nsz, ninf) allow no contraction or approximate reciprocal."""
-    eye = cam_vec(cam, 0)
-    right = cam_vec(cam, 3)
-    up = cam_vec(cam, 6)
-    fwd = cam_vec(cam, 9)
-    focal = cam[12]
-    u = ti.Vector([ti.cast(px0 + k, ti.f32) for k in ti.static(range(LANES))]) - cam[13]
-    v = ti.cast(py, ti.f32) - cam[14]
-    dx = fwd[0] * focal + right[0] * u - up[0] * v
-    dy = fwd[1] * focal + right[1] * u - up[1] * v
-    dz = fwd[2] * focal + right[2] * u - up[2] * v
-    inv = 1 / ti.sqrt(dx * dx + dy * dy + dz * dz)
-    rx = inv * dx
-    ry = inv * dy
-    rz = inv * dz
-    tg = ti.select((eye[1] > 0.0) & (ry < -1e-7), -eye[1] / ry, -1.0)  # ground_hit
-    gx = eye[0] + rx * tg
-    gz = eye[2] + rz * tg
-    # pixel footprint from the rays through pixels (px + 1, py) and (px, py + 1)
-    xx = dx + right[0]
-    xy = dy + right[1]
-    xz = dz + right[2]
-    yx = dx - up[0]
-    yy = dy - up[1]
-    yz = dz - up[2]
-    sx = eye[1] / xy
-    sy = eye[1] / yy
-    fwx = ti.max(ti.max(ti.abs((eye[0] - xx * sx) - gx), ti.abs((eye[0] - yx * sy) - gx)), 1e-4)
-    fwz = ti.max(ti.max(ti.abs((eye[2] - xz * sx) - gz), ti.abs((eye[2] - yz * sy) - gz)), 1e-4)
-    both = (xy < 0.0) & (yy < 0.0)
-    fwx = ti.select(both, fwx, 1.0e3)
-    fwz = ti.select(both, fwz, 1.0e3)
-    grid = ti.max(line_cover(gx, fwx), line_cover(gz, fwz))
-    f = 1.0 - ti.exp(-(tg / FOG_DISTANCE) * (tg / FOG_DISTANCE))
-    ground = tg > 0.0
-    b0 = ti.select(ground, tg * (rx * fwd[0] + ry * fwd[1] + rz * fwd[2]), ti.math.inf)
-    b1 = ti.select(ground, (1.0 - GRID_DARK * grid) * (1.0 - f), ti.sqrt(ti.math.clamp(ry, 0.0, 1.0)))
-    b2 = ti.select(ground, f, 0.0)
-    return b0, b1, b2
-
-
-@ti.func
 def background_span(cam: ti.template(), background: ti.template(), py, x0, x1):
-    """background[py, x0:x1, :] for the camera: background_lanes over whole packets, background_pixel on the
-    last (x1 - x0) % LANES pixels."""
-    packets = (x1 - x0) // LANES
-    for p in range(packets):
-        px0 = x0 + p * LANES
-        b0, b1, b2 = background_lanes(cam, px0, py)
-        for k in ti.static(range(LANES)):
-            background[py, px0 + k, 0] = b0[k]
-            background[py, px0 + k, 1] = b1[k]
-            background[py, px0 + k, 2] = b2[k]
-    for px in range(x0 + packets * LANES, x1):
+    """background[py, x0:x1, :] for the camera."""
+    for px in range(x0, x1):
         b0, b1, b2 = background_pixel(cam, px, py)
         background[py, px, 0] = b0
         background[py, px, 1] = b1
