@@ -63,3 +63,23 @@ def test_peers_flag_is_checked(capsys):
     assert main(["bench", "--peers", "julia", "--quick"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--peers" in err[0] and "julia" in err[0]
+
+
+def test_interleaved_peers_fill_a_cell_and_measure_keeps_them():
+    """peers.Interleaved times one run of each peer per call (bench: after each of crowd_ik's timed repeats), fills
+    the record from the best of them, and the parent's measure() does not time that record again."""
+    wl = workloads.make_workload("chain16", 64)
+    peer = bench_peers.Interleaved(wl, "fabrik", threads=1)
+    for _ in range(2):
+        peer.run_once()
+    assert [len(v) for v in peer.runs.values()] == [2, 2]
+    r = dict(arch="cpu", rig="chain16", solver="fabrik", n=64, solves_per_s=1e6, success_rate=1.0)
+    peer.fill(r)
+    best = min(x["time_s"] for x in peer.runs["f64"])
+    assert r["numba_interleaved"] and r["numba_f64_solves_per_s"] == pytest.approx(64 / best)
+    assert r["vs_numba_f64"] == pytest.approx(1e6 / r["numba_f64_solves_per_s"])
+    assert r["numba_f32_success_rate"] >= 0.95
+    before = dict(r)
+    assert bench_peers.measure([r], workloads.make_workload, repeats=1, threads=1) == [r] and r == before
+    assert bench_peers.qualifies("cpu", "chain16", "dls") and not bench_peers.qualifies("cuda", "chain16", "fabrik")
+    assert not bench_peers.qualifies("cpu", "humanoid", "fabrik")

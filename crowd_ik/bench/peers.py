@@ -164,33 +164,82 @@ PEER_RIG = "chain16"              # the workload the peers solve (one chain, one
 DTYPES = {"f64": np.float64, "f32": np.float32}
 
 
-def measure(records: list[dict], make_workload, repeats: int, threads: int | None = None) -> list[dict]:
-    """Time the numba peers on the workload of every chain16 FABRIK / DLS record, in float64 and float32, and add
-    to each record ``numba_<dtype>_solves_per_s`` (best of `repeats`), ``..._success_rate``,
-    ``..._mean_iterations`` and ``vs_numba_<dtype>`` (crowd_ik's solves/s over the peer's). Returns the records
-    it filled. The first call of each kernel (numba's compile) is not timed."""
-    import numba
-
+def _peer_inputs(wl) -> tuple[np.ndarray, np.ndarray]:
+    """The peers' start (N, J, 3) float64 joint positions and (N, 3) targets for a chain16 workload."""
     from crowd_ik.geometry.fk import forward_kinematics
+
+    start, _ = forward_kinematics(wl.rig, wl.roots.astype(np.float64), np.zeros(wl.n), wl.rotations())
+    return start, wl.targets[:, 0].astype(np.float64)
+
+
+def _fill(record: dict, wl, runs: dict) -> None:
+    """Add the peers' best runs (per dtype name, lists of solve() results) and the ratios to a record."""
+    for name, done in runs.items():
+        best = min(done, key=lambda x: x["time_s"])
+        rate = wl.n / best["time_s"]
+        record[f"numba_{name}_solves_per_s"] = rate
+        record[f"numba_{name}_success_rate"] = float(np.mean(best["error"] <= wl.tolerance))
+        record[f"numba_{name}_mean_iterations"] = float(np.mean(best["iterations"]))
+        record[f"vs_numba_{name}"] = record["solves_per_s"] / rate
+
+
+def _set_threads(threads: int | None) -> None:
+    import numba
 
     if threads is not None:
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def qualifies(arch: str, rig: str, solver: str) -> bool:
+    """Whether a cell has numba peers timed beside it (chain16 FABRIK and DLS on the CPU)."""
+    return arch == "cpu" and rig == PEER_RIG and solver in PEER_METHODS
+
+
+class Interleaved:
+    """The numba peers of one chain16 cell, timed in turn with crowd_ik's repeats of it: call :meth:`run_once`
+    after each timed crowd_ik solve (the bench's time_cell does), then :meth:`fill` the cell's record. The ratio
+    then compares runs made moments apart in one process, so it does not depend on how the load of a shared
+    machine changed between two phases of the run (on a loaded 2-core machine the same crowd_ik code measured
+    1.04x the float64 peer at 16,384 characters with the peers timed after all cells, 4.0x interleaved)."""
+
+    def __init__(self, wl, method: str, threads: int | None = None):
+        _set_threads(threads)
+        self.wl, self.method = wl, method
+        self.start, self.targets = _peer_inputs(wl)
+        self.runs: dict = {name: [] for name in DTYPES}
+        for dtype in DTYPES.values():  # numba's compile (or its cache load), untimed
+            solve(method, self.start[:8], self.targets[:8], wl.tolerance, wl.max_iterations, dtype)
+
+    def run_once(self) -> None:
+        for name, dtype in DTYPES.items():
+            self.runs[name].append(solve(self.method, self.start, self.targets, self.wl.tolerance,
+                                         self.wl.max_iterations, dtype))
+
+    def fill(self, record: dict) -> None:
+        record["numba_interleaved"] = True
+        _fill(record, self.wl, self.runs)
+
+
+def measure(records: list[dict], make_workload, repeats: int, threads: int | None = None) -> list[dict]:
+    """Time the numba peers on the workload of every chain16 FABRIK / DLS record, in float64 and float32, and add
+    to each record ``numba_<dtype>_solves_per_s`` (best of `repeats`), ``..._success_rate``,
+    ``..._mean_iterations`` and ``vs_numba_<dtype>`` (crowd_ik's solves/s over the peer's). A record that already
+    has them (timed by :class:`Interleaved` beside its cell) keeps them. Returns the records it filled or found
+    filled. The first call of each kernel (numba's compile) is not timed."""
+    _set_threads(threads)
     filled = []
     for r in records:
         if r["rig"] != PEER_RIG or r["solver"] not in PEER_METHODS:
             continue
-        wl = make_workload(PEER_RIG, r["n"])
-        start, _ = forward_kinematics(wl.rig, wl.roots.astype(np.float64), np.zeros(wl.n), wl.rotations())
-        targets = wl.targets[:, 0].astype(np.float64)
-        for name, dtype in DTYPES.items():
-            solve(r["solver"], start[:8], targets[:8], wl.tolerance, wl.max_iterations, dtype)  # compile
-            runs = [solve(r["solver"], start, targets, wl.tolerance, wl.max_iterations, dtype) for _ in range(repeats)]
-            best = min(runs, key=lambda x: x["time_s"])
-            rate = wl.n / best["time_s"]
-            r[f"numba_{name}_solves_per_s"] = rate
-            r[f"numba_{name}_success_rate"] = float(np.mean(best["error"] <= wl.tolerance))
-            r[f"numba_{name}_mean_iterations"] = float(np.mean(best["iterations"]))
-            r[f"vs_numba_{name}"] = r["solves_per_s"] / rate
+        if "numba_f64_solves_per_s" not in r:
+            wl = make_workload(PEER_RIG, r["n"])
+            start, targets = _peer_inputs(wl)
+            runs = {}
+            for name, dtype in DTYPES.items():
+                solve(r["solver"], start[:8], targets[:8], wl.tolerance, wl.max_iterations, dtype)  # compile
+                runs[name] = [solve(r["solver"], start, targets, wl.tolerance, wl.max_iterations, dtype)
+                              for _ in range(repeats)]
+            _fill(r, wl, runs)
         filled.append(r)
     return filled
 

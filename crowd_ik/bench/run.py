@@ -16,7 +16,10 @@ Timing: each cell is a fresh Crowd; one solve with max_iterations=1 first (alloc
 solver's scratch), then the best of ``repeats`` solves, each timed from the call to the return of
 ``Crowd.solve`` (upload of the targets and download of the report included). Compile time is taken
 apart, per (rig, solver), as the first call minus a steady call on a small crowd (the offline kernel
-cache is on, so after the first run this is mostly cache loading). The NumPy baseline gets a time
+cache is on, so after the first run this is mostly cache loading). With ``--peers numba`` the numba peers of
+each chain16 FABRIK / DLS cell on the CPU are timed in the same child process, one run of each after each of
+crowd_ik's timed repeats (crowd_ik/bench/peers.py: Interleaved), so the ratio compares runs made moments apart.
+The NumPy baseline gets a time
 budget per cell: it starts on min(N, 100) characters and grows the subset while `repeats` runs still
 fit in the budget; solves/s is then the subset size over its best time (``numpy_n`` says which).
 
@@ -102,6 +105,8 @@ def child_main(spec_path: str, result_path: str) -> int:
     arch = runtime.init(spec["arch"], spec["threads"])
     import taichi as ti
 
+    from crowd_ik.bench import peers as bench_peers
+
     cells = [tuple(c) for c in spec["cells"]]
     total = len(cells) + (1 if spec["game_chars"] else 0) + (1 if spec.get("render_frames") else 0)
     records, compile_info = [], {}
@@ -113,7 +118,13 @@ def child_main(spec_path: str, result_path: str) -> int:
                 small = min(m for r, s, m in cells if (r, s) == (rig_name, solver))
                 compile_info[key] = compile_time(make_workload(rig_name, small), solver)
             rec = dict(arch=arch, rig=rig_name, solver=solver, n=n)
-            rec.update(time_cell(make_workload(rig_name, n), solver, spec["repeats"]))
+            wl = make_workload(rig_name, n)
+            peer = None
+            if spec.get("peers") and bench_peers.qualifies(arch, rig_name, solver):
+                peer = bench_peers.Interleaved(wl, solver, spec["threads"])
+            rec.update(time_cell(wl, solver, spec["repeats"], between=peer.run_once if peer else None))
+            if peer is not None:
+                peer.fill(rec)
             rec["compile_s"] = compile_info[key]["compile_s"]
             records.append(rec)
             bar.update(1)
@@ -150,7 +161,8 @@ def run_child(arch: str, cells: list, opts: Options) -> dict:
         spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
         spec.write_text(json.dumps(dict(arch=arch, threads=opts.threads, cells=cells, repeats=opts.repeats,
                                         game_chars=opts.game_chars, game_frames=opts.game_frames,
-                                        scene_steps=opts.scene_steps, render_frames=opts.render_frames)))
+                                        scene_steps=opts.scene_steps, render_frames=opts.render_frames,
+                                        peers=bool(opts.peers))))
         proc = subprocess.run([sys.executable, "-m", "crowd_ik.bench.run", "--child", str(spec), str(result)])
         if proc.returncode == 130 or proc.returncode == -2:
             raise KeyboardInterrupt
@@ -200,7 +212,7 @@ def run(args) -> int:
     peer_targets = []
     if opts.peers:
         from crowd_ik.bench import peers as bench_peers
-        print("bench numba: timing the peers on the chain16 workloads", file=sys.stderr)
+        print("bench numba: timing the peers of the chain16 cells not timed beside them", file=sys.stderr)
         bench_peers.measure(records, make_workload, opts.repeats, opts.threads)
         peer_targets = bench_peers.targets(records, _isa())
     from crowd_ik.bench import render as bench_render

@@ -153,8 +153,9 @@ def compile_time(wl: Workload, solver: str) -> dict:
     return dict(n=wl.n, first_call_s=first, steady_s=steady, compile_s=max(first - steady, 0.0))
 
 
-def time_cell(wl: Workload, solver: str, repeats: int) -> dict:
-    """Best of `repeats` timed solves of the whole workload on a fresh Crowd, with its outcome and memory."""
+def time_cell(wl: Workload, solver: str, repeats: int, between=None) -> dict:
+    """Best of `repeats` timed solves of the whole workload on a fresh Crowd, with its outcome and memory;
+    between() (if given) runs after each timed solve, untimed (the numba peers interleaved: peers.Interleaved)."""
     from crowd_ik.crowd import Crowd, Status
 
     crowd = Crowd(wl.rig, wl.n, spacing=SPACING)
@@ -165,6 +166,8 @@ def time_cell(wl: Workload, solver: str, repeats: int) -> dict:
         if best is None or dt < min(times):
             best = report
         times.append(dt)
+        if between is not None:
+            between()
     t = min(times)
     converged = best.status == Status.CONVERGED
     reachable = best.status != Status.UNREACHABLE
