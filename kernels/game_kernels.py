@@ -144,3 +144,12 @@ def dodge_targets(
                 if planted_slot[e] >= 0:
                     targets[n, e] = planted[n, planted_slot[e]]
         roots_out[n] = root
+
+
+@ti.kernel
+def export_joints(world_pos: ndarray(dtype=vec3, ndim=2), joints: ndarray(dtype=vec3, ndim=2), serial: ti.template()):
+    """joints (N, J, 3) <- world_pos (a copy into host memory: what to_numpy gives, without its launch's set-up)."""
+    ti.loop_config(serialize=serial)
+    for n in range(world_pos.shape[0]):
+        for j in range(world_pos.shape[1]):
+            joints[n, j] = world_pos[n, j]

@@ -30,6 +30,7 @@ from crowd_ik.game.layout import character_layout
 from crowd_ik.game.limbs import Limbs
 from crowd_ik.geometry.vectors import UP, normalize
 from crowd_ik.kernels.serial_loops import BOX, serial_for
+from crowd_ik.prepared import prepared
 
 THREAT_HORIZON = 0.7  # s: how far ahead bullets are predicted
 THREAT_REACH = 0.7  # m: a bullet passing this close to the chest is a threat (and, if it misses, a dodge)
@@ -110,6 +111,11 @@ class Characters:
         self._planted_arg = self.planted if b.humanoid else np.zeros((N, 1, 3), np.float32)
         self._targets_buf = np.zeros((N, E, 3), np.float32)
         self._roots_buf = np.zeros((N, 3), np.float32)
+        # dodge_targets' inputs, copied into buffers kept from step to step so that its launch stays bound
+        # (crowd_ik.prepared): rest targets, lean, duck, guard, roots, yaw, chest points
+        self._dodge_in = (np.zeros((N, E, 3), np.float32), np.zeros((N, 3), np.float32), np.zeros(N, np.float32),
+                          np.zeros(N, np.float32), np.zeros((N, 3), np.float32), np.zeros(N, np.float32),
+                          np.zeros((N, 3), np.float32))
         self.limbs = Limbs(b, N, self.crowd)
         self.motion = CrowdMotion(self.ground, self.yaw, scene)
         self.motion.enabled &= b.humanoid
@@ -216,11 +222,14 @@ class Characters:
             return 0.0
         from crowd_ik.kernels import game_kernels as gk
 
-        f32 = np.float32
         targets, roots = self._targets_buf, self._roots_buf
-        gk.dodge_targets(self.rest_targets, np.ascontiguousarray(self.lean, f32), np.ascontiguousarray(self.duck, f32),
-                         np.ascontiguousarray(self.guard, f32), self.roots, self.yaw, self._planted_arg,
-                         self.ref_points, *self._dodge_consts, targets, roots, serial_for(self.n, BOX))
+        staged = self._dodge_in
+        for buf, value in zip(staged, (self.rest_targets, self.lean, self.duck, self.guard, self.roots, self.yaw,
+                                       self.ref_points)):
+            np.copyto(buf, value, casting="same_kind")
+        rest, lean, duck, guard, roots_in, yaw, chest = staged
+        prepared(gk.dodge_targets)(rest, lean, duck, guard, roots_in, yaw, self._planted_arg, chest,
+                                   *self._dodge_consts, targets, roots, serial_for(self.n, BOX))
         weights = self._weights * self.alive[:, None]
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)

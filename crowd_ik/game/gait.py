@@ -19,12 +19,16 @@ Everything is vectorised over characters (NumPy, one plant_legs launch); no Pyth
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 
 from crowd_ik.game.body import Body
 from crowd_ik.geometry.vectors import yaw_rotate
 from crowd_ik.kernels.serial_loops import POSE, serial_for
+from crowd_ik.prepared import prepared
+
+_PLANT_INPUTS = weakref.WeakKeyDictionary()  # crowd -> plant_legs' input buffers (feet, yaw, active)
 
 STEP_LENGTH = 0.30  # m: step length (one foot's advance over the body) at zero speed, times the body's scale
 STEP_PER_SPEED = 0.30  # s: extra step length per m/s of speed (m per m/s)
@@ -166,6 +170,13 @@ def plant_legs(crowd, legs: np.ndarray, feet: np.ndarray, yaw: np.ndarray, activ
     from crowd_ik.kernels import gait_kernels as gk
 
     ra = crowd.rig_arrays
-    gk.plant_legs(crowd.world_pos, crowd.world_rot, crowd.local_rot, ra["offset"], legs,
-                  np.ascontiguousarray(feet, np.float32), np.ascontiguousarray(yaw, np.float32),
-                  np.ascontiguousarray(active, np.int32), serial_for(crowd.n, POSE))
+    staged = _PLANT_INPUTS.get(crowd)
+    if staged is None or staged[0].shape != np.shape(feet):  # kept per crowd, so that the launch stays bound
+        staged = _PLANT_INPUTS[crowd] = (np.zeros(np.shape(feet), np.float32), np.zeros(crowd.n, np.float32),
+                                         np.zeros(crowd.n, np.int32))
+    feet_in, yaw_in, active_in = staged
+    np.copyto(feet_in, feet, casting="same_kind")
+    np.copyto(yaw_in, yaw, casting="same_kind")
+    np.copyto(active_in, active, casting="unsafe")
+    prepared(gk.plant_legs)(crowd.world_pos, crowd.world_rot, crowd.local_rot, ra["offset"],
+                            np.ascontiguousarray(legs, np.int32), feet_in, yaw_in, active_in, serial_for(crowd.n, POSE))

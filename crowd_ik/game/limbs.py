@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.game.body import Body
-from crowd_ik.prepared import prepared
 from crowd_ik.kernels.serial_loops import BOX, serial_for
+from crowd_ik.prepared import prepared
 
 
 def ti_ndarray(value: np.ndarray):

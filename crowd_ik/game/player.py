@@ -17,6 +17,8 @@ from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.gait import leg_joints, plant_legs
 from crowd_ik.geometry.vectors import yaw_rotate
+from crowd_ik.kernels.serial_loops import BOX, serial_for
+from crowd_ik.prepared import prepared
 
 CORNER_PAUSE = 0.6  # s: the scripted walker stops at every corner of its path (time slows down)
 STEP_TRIGGER = 0.17  # m: a foot steps when it is this far from where it should stand
@@ -202,6 +204,15 @@ class SteeredWalker(Walker):
         return root, yaw, targets, speed
 
 
+def export_joints(crowd, out: np.ndarray) -> np.ndarray:
+    """A new (N, J, 3) float32 copy of the crowd's joint positions, through `out`, a host buffer kept by the caller
+    (game_kernels.export_joints as a prepared launch: a to_numpy costs a launch's full set-up)."""
+    from crowd_ik.kernels import game_kernels as gk
+
+    prepared(gk.export_joints)(crowd.world_pos, out, serial_for(crowd.n, BOX))
+    return out.copy()
+
+
 class Player:
     """The player's walker, Crowd (one humanoid) and solved joints; `shots` counts the bullets it fired."""
 
@@ -217,6 +228,7 @@ class Player:
         self.shots = 0
         self._orient = body.orient[None].copy()
         self.joints = np.zeros((body.rig.n_joints, 3), np.float32)  # (J, 3) after the last update
+        self._joints_out = np.zeros((1, body.rig.n_joints, 3), np.float32)  # export_joints' kept host buffer
         self._legs = leg_joints(body.rig)
         self._arm_poles = ArmPoles(body, 1)  # elbows out and down (knees: plant_legs)
 
@@ -239,7 +251,7 @@ class Player:
                          orientations=self._orient, poles=self._arm_poles.update(root1, yaw1))
         # the feet exactly on the walker's footprints (game.gait): planted feet do not slide
         plant_legs(self.crowd, self._legs, targets[None, b.planted], yaw1, np.ones(1, np.int32))
-        self.joints = self.crowd.joint_positions()[0].astype(np.float32)
+        self.joints = export_joints(self.crowd, self._joints_out)[0]
 
     def steer(self, move, aim=None) -> None:
         """Hand steering from now on (see SteeredWalker.steer); the scripted path is not resumed."""

@@ -20,7 +20,7 @@ from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import shooter_layout
-from crowd_ik.game.player import ARM_REACH, MUZZLE
+from crowd_ik.game.player import ARM_REACH, MUZZLE, export_joints
 from crowd_ik.geometry.vectors import normalize
 
 TAU_AIM = 0.12  # s: the aim follows a new target with this time constant
@@ -46,7 +46,8 @@ class Shooters:
         self.crowd = Crowd(hb.rig, n=S, seed=scene.seed)
         self.crowd.set_angles(hb.stance)
         self.crowd.set_roots(self.roots, self.yaw)
-        self.joints = self.crowd.joint_positions().astype(np.float32)  # (S, J, 3) after the last step
+        self._joints_out = np.zeros((S, hb.rig.n_joints, 3), np.float32)  # export_joints' kept host buffer
+        self.joints = export_joints(self.crowd, self._joints_out)  # (S, J, 3) after the last step
         self.joints_prev = self.joints.copy()
         self._orient = np.ascontiguousarray(np.broadcast_to(hb.orient, (S, hb.rig.n_effectors, 3)), np.float32)
         self.shots_fired = np.zeros(S, np.int64)
@@ -148,7 +149,7 @@ class Shooters:
                          weights=self._weights, orientations=self._orient,
                          poles=self.arm_poles.update(self.roots, self.yaw, up))
         self.gait.plant(self.crowd, feet, self.yaw, up)
-        self.joints = self.crowd.joint_positions().astype(np.float32)
+        self.joints = export_joints(self.crowd, self._joints_out)
         return 1e3 * (time.perf_counter() - t0)
 
     def struck(self, down: np.ndarray) -> None:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.prepared import prepared
 from crowd_ik.kernels.serial_loops import POSE, serial_for
+from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles
 
 
