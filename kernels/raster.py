@@ -53,8 +53,9 @@ raster_shade (background and per-pixel shading; re-exported here).
 import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND: the renderer's too)
-    _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, capsule_hit, dir_origin,
-    effective_radius, empty_key, mark_tiles, pixel_range, primitive_parts, row3, shadow_soft, shadow_value, sphere_bounds,
+    _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, capsule_hit,
+    dir_origin, effective_radius, empty_key, mark_tiles, pixel_range, primitive_parts, row3, shadow_soft, shadow_value,
+    sphere_bounds,
 )
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
     shade_all, shade_background, shade_frame, shade_frame_background, shade_tiles,
