@@ -206,14 +206,20 @@ def free_recover(L: int, max_joints: int):
     in (P, J) lane rows; each stream keeps its packet's world pose in field rows fx, fy, fz, fqx, fqy, fqz, fqw."""
     V = ti.types.vector(L, ti.f32)
     fx, fy, fz, fqx, fqy, fqz, fqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
+    acc = ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, 4))  # swing_round's running sums
 
     @ti.func
-    def swing_round(p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, bone: ti.template(),
+    def swing_round(s, p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, bone: ti.template(),
                     child_list: ti.template(), gx: ti.template(), gy: ti.template(), gz: ti.template(),
                     ga: ti.template()):
         """fabrik.swing_round per lane: q turned by the weighted mean of the minimal swings aiming each active
-        child at its proposal (inverse base rotation i, joint position j)."""
-        ax, ay, az, aw_ = V(0.0), V(0.0), V(0.0), V(0.0)
+        child at its proposal (inverse base rotation i, joint position j). The sums run in the stream's field
+        row acc, not in registers: that keeps LLVM's loop vectorizer off the loop over children, which it
+        widened into a copy many times the loop's size that only a joint with many children would run (the
+        kernel's optimised IR: 22,000 -> 5,000 lines; cold compile of chain16 FABRIK 16.0 -> 13.4-15.1 s of
+        CPU, bit for bit the same poses)."""
+        for k in ti.static(range(4)):
+            acc[s, k] = V(0.0)
         for cc in range(c0, c1):
             c = child_list[cc]
             wc = ga[p, c]
@@ -225,11 +231,11 @@ def free_recover(L: int, max_joints: int):
             sx, sy, sz, sw = lm.swing(ux, uy, uz, vx, vy, vz)
             flip = ti.select(sw < 0.0, -1.0, 1.0)
             sx, sy, sz, sw = flip * sx, flip * sy, flip * sz, flip * sw
-            ax = ti.select(on, ax + wc * sx, ax)
-            ay = ti.select(on, ay + wc * sy, ay)
-            az = ti.select(on, az + wc * sz, az)
-            aw_ = ti.select(on, aw_ + wc * sw, aw_)
-        nx, ny, nz, nw = lm.qnormalize(ax, ay, az, aw_)
+            acc[s, 0] = ti.select(on, acc[s, 0] + wc * sx, acc[s, 0])
+            acc[s, 1] = ti.select(on, acc[s, 1] + wc * sy, acc[s, 1])
+            acc[s, 2] = ti.select(on, acc[s, 2] + wc * sz, acc[s, 2])
+            acc[s, 3] = ti.select(on, acc[s, 3] + wc * sw, acc[s, 3])
+        nx, ny, nz, nw = lm.qnormalize(acc[s, 0], acc[s, 1], acc[s, 2], acc[s, 3])
         mx, my, mz, mw = lm.qmul(nx, ny, nz, nw, qx, qy, qz, qw)
         return lm.qnormalize(mx, my, mz, mw)
 
@@ -304,8 +310,8 @@ def free_recover(L: int, max_joints: int):
                                 tx, ty, tz, tw = qx, qy, qz, qw
                                 sx, sy, sz, sw = qx, qy, qz, qw
                                 for r in range(rounds):
-                                    tx, ty, tz, tw = swing_round(p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw, jx, jy, jz,
-                                                                 bone, child_list, gx, gy, gz, ga)
+                                    tx, ty, tz, tw = swing_round(s, p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw, jx, jy,
+                                                                 jz, bone, child_list, gx, gy, gz, ga)
                                     if r == 0:
                                         sx, sy, sz, sw = tx, ty, tz, tw
                                 several = n_active > 1.0  # the sub-base lanes take the refined rotation
