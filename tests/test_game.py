@@ -413,3 +413,39 @@ def test_game_elbows_point_out_and_back_never_into_the_body():
     # without poles the same run has elbows turned 0.39 into the body and a mean 'out' of 0.03
     assert out[bent].min() > -0.2 and out[bent].mean() > 0.2
     assert forward[bent].max() < 0.4 and forward[bent].mean() < -0.4  # elbows behind the arm's line
+
+
+def test_autopilot_line_of_fire_matches_every_pair_brute_force():
+    from types import SimpleNamespace
+
+    from crowd_ik.game.autopilot import CLEAR_WIDTH, Autopilot
+
+    rng = np.random.default_rng(5)
+    pilot = Autopilot.__new__(Autopilot)  # _pick reads only the body's scale
+    pilot.body = SimpleNamespace(scale=1.0)
+    blocked = 0
+    for _ in range(40):
+        n, s = int(rng.integers(1, 400)), int(rng.integers(1, 12))
+        here = rng.uniform(-5.0, 5.0, 2)
+        shooters = SimpleNamespace(alive=rng.random(s) < 0.8, ground=np.zeros((s, 3), np.float32))
+        shooters.alive[0] = True
+        shooters.ground[:, [0, 2]] = rng.uniform(-30.0, 30.0, (s, 2))
+        chars = SimpleNamespace(alive=rng.random(n) < 0.9, ground=np.zeros((n, 3), np.float32))
+        chars.ground[:, [0, 2]] = rng.uniform(-30.0, 30.0, (n, 2))
+        d = shooters.ground[0, [0, 2]] - here  # a few bystanders right at the clearance from the first line
+        side = np.array([-d[1], d[0]]) / np.hypot(*d)
+        m = min(n, 10)
+        chars.ground[:m, [0, 2]] = here + d * rng.random((m, 1)) + side * (CLEAR_WIDTH + rng.normal(0.0, 1e-6, (m, 1)))
+        up = np.flatnonzero(shooters.alive)
+        seg = shooters.ground[up][:, [0, 2]].astype(np.float64) - here
+        length2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-12)
+        p = chars.ground[chars.alive][:, [0, 2]].astype(np.float64) - here
+        t = (p @ seg.T) / length2
+        near = (np.linalg.norm(t[..., None] * seg[None] - p[:, None, :], axis=2) < CLEAR_WIDTH) & (t > 0.0) & (t < 1.0)
+        clear = ~near.any(axis=0)
+        order = np.argsort(length2, kind="stable")
+        best = order[clear[order]]
+        k = best[0] if best.size else order[0]
+        assert pilot._pick(here, shooters, chars) == (int(up[k]), bool(clear[k]))
+        blocked += int((~clear).sum())
+    assert blocked > 0

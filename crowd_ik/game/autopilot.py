@@ -25,6 +25,7 @@ AIM_HOLD = 0.3  # s: the aim is held this long on the same shooter before a shot
 FIRE_INTERVAL = (2.4, 3.4)  # s between shots (uniform): the shooters keep up the fire for most of the video
 FIRST_SHOT = 1.5  # s: no shot before this
 CLEAR_WIDTH = 0.45  # m: a bystander whose root is this close to the line of fire blocks it
+CLEAR_MARGIN = 0.01  # m: _pick tests exactly only the bystanders within CLEAR_WIDTH + this of a line
 
 
 class Autopilot:
@@ -91,9 +92,15 @@ class Autopilot:
         if alive.size:
             p = characters.ground[alive][:, [0, 2]].astype(np.float64) - here  # (N', 2)
             t = (p @ seg.T) / length2  # (N', S')
-            closest = t[..., None] * seg[None] - p[:, None, :]
-            near = (np.linalg.norm(closest, axis=2) < CLEAR_WIDTH * self.body.scale) & (t > 0.0) & (t < 1.0)
-            clear = ~near.any(axis=0)
+            width = CLEAR_WIDTH * self.body.scale
+            # candidates: pairs whose distance to the line (|p x seg| / |seg|, the distance to the segment where
+            # 0 < t < 1) is below the width plus a margin far above rounding; only they can be near, and for them
+            # `near` is computed exactly as over every pair
+            cross = p[:, :1] * seg[:, 1] - p[:, 1:] * seg[:, 0]
+            n, s = np.nonzero((cross * cross < (width + CLEAR_MARGIN) ** 2 * length2) & (t > 0.0) & (t < 1.0))
+            closest = t[n, s][:, None] * seg[s] - p[n]
+            near = np.linalg.norm(closest, axis=1) < width
+            clear[s[near]] = False
         order = np.argsort(length2, kind="stable")
         best = order[clear[order]]
         k = best[0] if best.size else order[0]
