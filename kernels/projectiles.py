@@ -36,8 +36,9 @@ vec3 = ti.math.vec3
 
 # ---------------------------------------------------------------------------------------------
 # fused phases: the same loop bodies as above, several top-level loops (run one after the other,
-# each in parallel) per launch. A launch costs ~0.05-0.3 ms on the CPU backend whatever its size,
-# which is most of a small scene's step.
+# each in parallel, or all on the launching thread with serial=True: kernels/serial_loops.py) per
+# launch. A launch costs ~0.05-0.3 ms on the CPU backend whatever its size, which is most of a small
+# scene's step.
 
 
 @ti.func
