@@ -41,7 +41,7 @@ EMPTY_ID = 0x7FFFFFFF  # id field of an empty key
 # for most of it; the image passes loop over SPAN-pixel pieces of rows instead.
 SPAN = 64
 PRIMITIVE_ITEMS = 3072  # item count a primitive loop reaches by splitting primitives (when n is small)
-MAX_PARTS = 4
+MAX_PARTS = 64  # (so a duel's ~50 primitives still make ~3,000 items)
 TILE = 16  # pixels: the side of the square tiles whose dirty flags let frames skip untouched ground
 BIG = 1.0e30
 _CORNER_X = (0.0, 1.0, 1.0, 0.0)  # the footprint rectangle's corners in order around it
