@@ -30,6 +30,9 @@ Why this shape (see also crowd_ik/render.py):
   it once per camera and a ground pixel costs one multiply-add per channel. A new camera's frame shades
   every pixel anyway, so there one pass (`shade_frame_background`) computes, keeps and uses each
   pixel's background.
+- Work split for the cores: Taichi's CPU backend hands out a parallel loop in tasks of at least 512
+  iterations, so the image passes loop over (row, SPAN-pixel piece), (row, tile column) or tiles, and
+  `splat_shadows` over several items per primitive (each every parts-th texel row) when there are few.
 - Dirty tiles: `raster_capsules` and `splat_shadows` flag the TILE x TILE pixel tiles their screen
   boxes touch; `clear_buffers` and `shade_frame` work only on tiles drawn on this frame or the last,
   so the rest of a persistent frame buffer keeps its background (a crowd seen from afar covers a
