@@ -31,7 +31,7 @@ later turn cannot undo them).
 
 import taichi as ti
 
-from crowd_ik.kernels.ccd_rotation import shift_targets, turn_to_rotations
+from crowd_ik.kernels.ccd_rotation import limb_weights, shift_targets, turn_to_rotations
 from crowd_ik.kernels.ccd_steps import (
     constrain_joint, fk_after, hinge_reach_step, hinge_step, joint_active, relative_error, straighten_step,
     swing_step,
@@ -50,7 +50,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
               eff_axis: ti.template(), below: ti.template(), reach: ti.template(), root_yaw: ti.template(),
               local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), rel_t: ti.template(),
               eff_pos: ti.template(), weights: ti.template(), orient: ti.template(), goals: ti.template(),
-              goal_t: ti.template(), rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template()):
+              goal_t: ti.template(), rot_t: ti.template(), rot_w: ti.template(), eff_move: ti.template(),
+              limb_len: ti.template(), aim_w: ti.template()):
     """One CCD sweep of character i, deepest joint first, then the orientation pass (goals 1: axis targets;
     goals 2: full rotation targets, see shift_targets and turn_to_rotations).
 
@@ -99,6 +100,8 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
             if p >= 0 and n_active_children == 1:
                 if child_start[p + 1] - child_start[p] == 1:
                     serial = 1
+            if ti.static(goals & 4):  # the limbs' terms damped at the joints above them (limb_weights)
+                limb_weights(i, j, eff_joint, eff_move, limb_len, below, weights, rot_w, world_pos, goal_t, aim_w)
             if out_of_reach != 0 and serial != 0:
                 q = straighten_step(k, q, axes[j, 0], qrot(inv_base, world_pos[i, only_child] - pos_j),
                                     qrot(inv_base, pos_j - world_pos[i, p]))
@@ -107,9 +110,11 @@ def ccd_sweep(i, parent: ti.template(), offset: ti.template(), kind: ti.template
                 q = hinge_reach_step(i, q, axes[j, 0], lo[s], hi[s], inv_base, pos_j, world_pos[i, p], single,
                                      eff_joint, goal_t, eff_pos)
             elif k == 1:
-                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, goal_t, weights, eff_pos)
+                q = hinge_step(i, j, q, axes[j, 0], inv_base, pos_j, below, eff_joint, goal_t,
+                               aim_w if ti.static(goals & 4) else weights, eff_pos)
             else:
-                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, goal_t, weights, eff_pos)
+                q = swing_step(i, j, q, inv_base, pos_j, below, eff_joint, goal_t,
+                               aim_w if ti.static(goals & 4) else weights, eff_pos)
             q = constrain_joint(i, j, q, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                                 below, weights)
             # carry the effectors below j along with its turn (world turn = base q_new q_old^-1 base^-1)
@@ -177,6 +182,8 @@ def ccd_solve(
     rel_t: ndarray(dtype=vec3, ndim=2),
     aim_t: ndarray(dtype=vec3, ndim=2),
     eff_pos: ndarray(dtype=vec3, ndim=2),
+    limb_len: ndarray(ndim=2),
+    aim_w: ndarray(ndim=2),
     max_iterations: ti.i32,
     tolerance: ti.f32,
     rotation_tolerance: ti.f32,
@@ -220,11 +227,11 @@ def ccd_solve(
             if ti.static(goals & 2):  # one call site per compile: aim at the shifted targets
                 ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                           eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t,
-                          eff_pos, weights, orient, goals, aim_t, rot_t, rot_w, eff_move)
+                          eff_pos, weights, orient, goals, aim_t, rot_t, rot_w, eff_move, limb_len, aim_w)
             else:
                 ccd_sweep(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start, child_list,
                           eff_joint, eff_axis, below, reach, root_yaw, local_rot, world_pos, world_rot, rel_t,
-                          eff_pos, weights, orient, goals, rel_t, rot_t, rot_w, eff_move)
+                          eff_pos, weights, orient, goals, rel_t, rot_t, rot_w, eff_move, limb_len, aim_w)
             new_err = relative_error(i, eff_joint, rel_t, weights, world_pos)
             new_turn = 0.0
             if ti.static(goals & 1):

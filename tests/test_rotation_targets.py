@@ -114,7 +114,9 @@ def test_ccd_turns_the_effector_frames_onto_rotation_targets():
     # most effectors meet their rotation (wrists and ankles are universal joints: the shoulder or hip swivels
     # for the twist they lack); the solve without rotation targets leaves them ~1 rad off
     assert np.median(ang) < 1e-2 and np.mean(ang <= 1e-2) > 0.8
-    assert np.mean(rep.converged) > 0.3
+    # measured 36/48 converged, max error 8.7 mm; 21/48 and 95 mm before the limbs' terms were damped at the joints
+    # above them and a hip's or shoulder's clamped swivel passed up (kernels/ccd_rotation.py)
+    assert np.mean(rep.converged) > 0.65 and np.max(rep.error) < 0.02
     assert np.median(rep.error) < 5e-3
 
 

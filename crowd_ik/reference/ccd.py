@@ -19,6 +19,9 @@ from crowd_ik.reference.rotation_goals import turn_error
 from crowd_ik.rig import Rig
 
 MULTI_ROUNDS = 4
+LIMB_DAMP = 0.05
+LIMB_REACH = 0.98
+PASS_UP = 2.0
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
 
@@ -109,13 +112,14 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
     pos, wrot = forward_kinematics(rig, root_pos, root_yaw, rot)
     has_rot = np.zeros((N, E), bool)
     if rotations is not None:
-        from crowd_ik.solvers.ccd import moving_joints
+        from crowd_ik.solvers.ccd import limb_lengths, moving_joints
 
         rot_t = np.asarray(rotations, np.float64).reshape(N, E, 4)
         rw = np.ones((N, E)) if rotation_weights is None else np.broadcast_to(
             np.asarray(rotation_weights, np.float64), (N, E))
         has_rot = (rw > 0) & (np.sum(rot_t * rot_t, -1) > 0)
         move = moving_joints(rig)
+        limb_len = limb_lengths(rig, move)
 
     def error_of(pos):
         d = np.linalg.norm(pos[:, eff_joint] - targets, axis=-1)
@@ -151,6 +155,17 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
         finish(j, q, base, *scratch, live)  # only for its clamp: the pose is not changed here
         return scratch[0][:, j]
 
+    def limb_weights(j, pos, goal):
+        """(N, E) the effectors' weights at joint j: kernels/ccd_rotation.limb_weights."""
+        out = weights.copy()
+        for e in range(E):
+            b = move[e, 1]
+            if b > j and below[j, e]:
+                length = np.where(has_rot[:, e], limb_len[e, 1], limb_len[e, 0])
+                near = np.linalg.norm(goal[:, e] - pos[:, b], axis=-1) < LIMB_REACH * length
+                out[:, e] = np.where(on[:, e] & near, weights[:, e] * LIMB_DAMP, weights[:, e])
+        return out
+
     def sweep(rot, pos, wrot):
         rot, pos, wrot = rot.copy(), pos.copy(), wrot.copy()
         rows = np.arange(N)
@@ -167,6 +182,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
             shifted = targets[:, e] - qrot(qmul(base, q), v)
             goal[:, e] = np.where(has_rot[:, e, None], shifted, goal[:, e])
             aim[:, e] = np.where(has_rot[:, e], m, aim[:, e])
+        pos0 = pos.copy()  # the kernel's world_pos during the sweep (FK runs at its end)
         for j in reversed(range(J)):
             joint = rig.joints[j]
             if joint.dof == 0 or not active[:, j].any():
@@ -179,6 +195,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
             axes = np.array(joint.axes or [(0.0, 0.0, 1.0)] * 2)
             ax = axes[0]
             mine = on & below[j]  # (N, E) effectors this joint serves
+            aim_w = weights if rotations is None else limb_weights(j, pos0, goal)
             far = np.linalg.norm(goal - pos[:, :1], axis=-1) > reach  # (N, E) out of the whole chain's reach
             out_of_reach = np.all(far | ~mine, axis=1)
             kids = [c for c in rig.children[j]]
@@ -198,7 +215,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                     v = qrot(inv_base, goal[:, e] - pos_j)
                     u = u - _dot(u, ax)[:, None] * ax
                     v = v - _dot(v, ax)[:, None] * ax
-                    w = np.where(mine[:, e], weights[:, e], 0.0)
+                    w = np.where(mine[:, e], aim_w[:, e], 0.0)
                     s_cross += w * _dot(ax, np.cross(u, v))
                     s_dot += w * _dot(u, v)
                 turned = _rotate_about(ax, np.arctan2(s_cross, s_dot), q)
@@ -225,7 +242,7 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                         ok = mine[:, e] & (nu > 1e-9) & (nv > 1e-9)
                         sw = swing(u / np.maximum(nu, 1e-300)[:, None], v / np.maximum(nv, 1e-300)[:, None])
                         sw = np.where((sw[:, 3] < 0.0)[:, None], -sw, sw)
-                        acc += np.where(ok, weights[:, e] * nu * nv, 0.0)[:, None] * sw
+                        acc += np.where(ok, aim_w[:, e] * nu * nv, 0.0)[:, None] * sw
                     step = (n_eff > 0) & (r < np.where(n_eff > 1, MULTI_ROUNDS, 1)) & (_dot(acc, acc) > 0.0)
                     delta = np.where(step[:, None], _normalize_q(qmul(_normalize_q(acc), delta)), delta)
                 q_new = _normalize_q(qmul(delta, q))
@@ -275,7 +292,19 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
                         half = 0.5 * ang
                         turn = np.concatenate([a * np.sin(half)[:, None], np.cos(half)[:, None]], axis=-1)
                         qb = qmul(qconj(bb), _normalize_q(qmul(turn, wrot[:, b])))
+                        old_b = wrot[:, b].copy()
                         finish(b, qb, bb, rot, pos, wrot, ok)
+                        pp = rig.joints[b].parent
+                        if pp >= 0 and rig.joints[pp].kind == "ball":
+                            did = qmul(wrot[:, b], qconj(old_b))
+                            got = 2.0 * np.arctan2(_dot(did[:, :3], a), did[:, 3])
+                            short = ang - np.arctan2(np.sin(got), np.cos(got))
+                            half = 0.5 * PASS_UP * short
+                            turn = np.concatenate([a * np.sin(half)[:, None], np.cos(half)[:, None]], axis=-1)
+                            ppp = rig.joints[pp].parent
+                            pbase = q_root if ppp < 0 else wrot[:, ppp]
+                            finish(pp, qmul(qconj(pbase), _normalize_q(qmul(turn, wrot[:, pp]))), pbase, rot, pos,
+                                   wrot, ok & (np.abs(short) > 1e-6))
         return rot, pos, wrot
 
     def turn_of(wrot):

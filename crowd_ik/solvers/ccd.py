@@ -31,6 +31,23 @@ def moving_joints(rig) -> np.ndarray:
     return out
 
 
+def limb_lengths(rig, move: np.ndarray) -> np.ndarray:
+    """(E, 2) float64: per effector the bone path from its limb's ball joint b = move[e, 1] to the effector joint and
+    to its moving joint move[e, 0] (kernels/ccd_rotation.limb_weights); 0 where it has no such b."""
+    out = np.zeros((rig.n_effectors, 2))
+    bone = np.linalg.norm(rig.arrays["offset"].astype(np.float64), axis=-1)
+    for e, eff in enumerate(rig.effectors):
+        b = move[e, 1]
+        if b < 0:
+            continue
+        for c, start in enumerate((eff.joint, move[e, 0])):
+            k = start
+            while k > b:
+                out[e, c] += bone[k]
+                k = rig.joints[k].parent
+    return out
+
+
 def solve(crowd, req) -> None:
     ti, rig = crowd.ti, crowd.rig
     # below[j, e] = 1 where effector e's joint lies in joint j's subtree (j included)
@@ -45,14 +62,18 @@ def solve(crowd, req) -> None:
 
     b = crowd.buffers
     # compile time: the plain sweep stays as it was; 1 axis targets, 2 full rotation targets
-    goals = int(not b.orient_zero) | (2 if req.rotations is not None else 0)
+    goals = int(not b.orient_zero) | (6 if req.rotations is not None else 0)  # 4: limb_weights
     move = crowd.scratch("ccd_eff_move", ti.i32, (rig.n_effectors, 2))
-    move.from_numpy(moving_joints(rig))
+    move_np = moving_joints(rig)
+    move.from_numpy(move_np)
+    limb = crowd.scratch("ccd_limb_len", ti.f32, (rig.n_effectors, 2))
+    limb.from_numpy(limb_lengths(rig, move_np).astype(np.float32))
     ccd.ccd_solve(
         *bundles.limited_rig(crowd), below, reach, *bundles.pose(crowd), *bundles.goal(crowd),
         *bundles.rotation_goal(crowd), move,
         crowd.scratch("ccd_rel_t", ti.math.vec3, (crowd.n, rig.n_effectors)),
         crowd.scratch("ccd_aim_t", ti.math.vec3, (crowd.n, rig.n_effectors)),
         crowd.scratch("ccd_eff_pos", ti.math.vec3, (crowd.n, rig.n_effectors)),
+        limb, crowd.scratch("ccd_aim_w", ti.f32, (crowd.n, rig.n_effectors)),
         req.max_iterations, req.tolerance, req.rotation_tolerance, goals, *bundles.result(crowd),
     )
