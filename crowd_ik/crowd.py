@@ -14,6 +14,7 @@ import numpy as np
 
 from crowd_ik import runtime
 from crowd_ik.checks import as_array as _as_array, is_number, positive_int as _positive_int
+from crowd_ik.prepared import prepared
 from crowd_ik.rig import MAX_EXTENT, Rig
 from crowd_ik.solvers import ccd, dls, fabrik, poles as pole_hints
 from crowd_ik.solvers.bundles import SolveBuffers
@@ -116,6 +117,8 @@ class Crowd:
         self._scratch: dict[str, object] = {}
         self._every = np.arange(N, dtype=np.int32)
         self._roots_host = self._yaw_host = None  # the roots as last set (set_roots redoes FK of the moved ones)
+        self._base = np.zeros((N, 3), np.float32)  # the root joints' world positions (_set_base)
+        self._world_rot_host = None  # (N, J, 4) float32: world_rot read back for a report's rotation errors
         self.set_roots(grid_positions(N, float(spacing), self.dim))
         self.set_angles(np.zeros(D, np.float32))
 
@@ -162,8 +165,9 @@ class Crowd:
         UNREACHABLE test and the free root's sub-base rule read it."""
         off = self.rig.arrays["offset"][0].astype(np.float64)
         c, s = np.cos(self.root_yaw), np.sin(self.root_yaw)
-        self._base = (self.root_pos + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]),
-                                                -s * off[0] + c * off[2]], -1)).astype(np.float32)
+        # kept in one buffer: the root shift's launch is prepared on it (crowd_ik/prepared.py)
+        np.copyto(self._base, self.root_pos + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]),
+                                                        -s * off[0] + c * off[2]], -1), casting="same_kind")
 
     def _roots_moved(self) -> None:
         """After a solve moved root_pos in place (root_weight): what set_roots derives from the roots."""
@@ -197,8 +201,13 @@ class Crowd:
         from crowd_ik.kernels import fk
 
         ra = self.rig_arrays
-        if which is None:
-            which = self._every
+        if which is None:  # every character: the crowd's own arrays, a prepared launch
+            from crowd_ik.kernels.serial_loops import JOINT, serial_for
+
+            J = self.rig.n_joints
+            prepared(fk.fk_kernel)(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
+                                   self.world_pos, self.world_rot, self._every, J, serial_for(self.n * J, JOINT))
+            return
         fk.forward_kinematics(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
                               self.world_pos, self.world_rot, which, self.rig.n_joints)
 
@@ -307,10 +316,20 @@ class Crowd:
         if reach is None:  # the rig's reach, uploaded once per crowd
             reach = self.scratch("root_reach", self.ti.f32, (self.rig.n_effectors,))
             reach.from_numpy(np.asarray(self.rig.reach, np.float32))
-        root_shift.shift_roots(reach, self.root_pos, self._base, self.buffers.targets, self.buffers.weights,
-                               min(req.root_weight, 1.0), self.dim)
+        prepared(root_shift.shift_roots)(reach, self.root_pos, self._base, self.buffers.targets, self.buffers.weights,
+                                         min(req.root_weight, 1.0), self.dim)
         self._roots_moved()
         self._fk()
+
+    def _read_world_rot(self) -> np.ndarray:
+        """world_rot copied into a kept host buffer (what to_numpy() gives, by a prepared launch of the kernel
+        to_numpy runs: no new array and no per-argument Python work per report)."""
+        from taichi._kernels import ndarray_matrix_to_ext_arr
+
+        if self._world_rot_host is None:
+            self._world_rot_host = np.zeros((self.n, self.rig.n_joints, 4), np.float32)
+        prepared(ndarray_matrix_to_ext_arr)(self.world_rot, self._world_rot_host, 1, 1)
+        return self._world_rot_host
 
     def _report(self, req: SolveRequest) -> SolveReport:
         b = self.buffers
@@ -318,7 +337,7 @@ class Crowd:
         status = np.full(self.n, Status.CONVERGED, np.int8)
         turn = np.zeros(self.n, np.float32)
         if req.orientations is not None or req.rotations is not None:
-            turn = rotation_error(self.rig, self.world_rot.to_numpy(), req)
+            turn = rotation_error(self.rig, self._read_world_rot(), req)
         # the others converged (in a game step, nearly all of them)
         left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule

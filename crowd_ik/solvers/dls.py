@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.dls_setup import dls_settings
 from crowd_ik.solvers.limits import limit_pseudo_angles
@@ -43,20 +44,25 @@ def _general(crowd, req) -> None:
     if req.root_weight is not None:
         extra |= 4
         C += 3
-    cfg = dls_settings(rig, req.damping, req.joint_weights)
-    joint_w = np.zeros(C, np.float32)
-    joint_w[: rig.n_dof] = 1.0 if req.joint_weights is None else req.joint_weights
-    if req.root_weight is not None:
-        joint_w[D + 1 : D + 1 + rig.dim] = req.root_weight  # a planar rig's root stays in its plane
-    small = {}  # per-solve settings: a few dozen numbers
-    for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
-                        ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
-                        ("lim_p", limit_pseudo_angles(cfg["lo32"], cfg["hi32"])),
-                        ("com_w", cfg["com_w"].astype(np.float32)),
-                        ("support_w", cfg["support_w"].astype(np.float32))):
-        small[name] = crowd.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
-        small[name].from_numpy(value)
-    dls.dls_solve(
+    jw = None if req.joint_weights is None else req.joint_weights
+    key = ("general", req.damping, None if jw is None else jw.tobytes(), req.root_weight)
+    cfg, small = _loaded(crowd, key)
+    if small is None:  # new settings: computed and uploaded (a game's solves reuse them)
+        cfg = dls_settings(rig, req.damping, jw)
+        joint_w = np.zeros(C, np.float32)
+        joint_w[: rig.n_dof] = 1.0 if jw is None else jw
+        if req.root_weight is not None:
+            joint_w[D + 1 : D + 1 + rig.dim] = req.root_weight  # a planar rig's root stays in its plane
+        small = {}  # per-solve settings: a few dozen numbers
+        for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
+                            ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
+                            ("lim_p", limit_pseudo_angles(cfg["lo32"], cfg["hi32"])),
+                            ("com_w", cfg["com_w"].astype(np.float32)),
+                            ("support_w", cfg["support_w"].astype(np.float32))):
+            small[name] = crowd.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
+            small[name].from_numpy(value)
+        _store(crowd, key, cfg, small)
+    prepared(dls.dls_solve)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
         small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         ra["eff_axis"], ra["eff_has_axis"],
@@ -77,25 +83,40 @@ def _free(crowd, req) -> None:
     from crowd_ik.kernels import dls_lanes, lane_plan
 
     ra, ti, rig = crowd.rig_arrays, crowd.ti, crowd.rig
-    cfg = dls_settings(rig, req.damping)
-    on_path_np = np.zeros(rig.n_joints, np.int32)
-    path = rig.path_to_root(rig.effectors[0].joint)
-    on_path_np[path] = rig.arrays["kind"][path] > 0
-    on_path = crowd.scratch("dls_on_path", ti.i32, (rig.n_joints,))
-    on_path.from_numpy(on_path_np)
-    eff_lim = crowd.scratch("dls_eff_lim", ti.f32, cfg["eff_lim"].shape)
-    eff_lim.from_numpy(cfg["eff_lim"])
-    head = (ra["parent"], ra["offset"], ra["kind"], on_path, ra["eff_joint"], eff_lim, *bundles.pose(crowd),
-            *bundles.goal(crowd, orientations=False))
+    key = ("free", req.damping)
+    cfg, small = _loaded(crowd, key)
+    if small is None:
+        cfg = dls_settings(rig, req.damping)
+        on_path_np = np.zeros(rig.n_joints, np.int32)
+        path = rig.path_to_root(rig.effectors[0].joint)
+        on_path_np[path] = rig.arrays["kind"][path] > 0
+        small = dict(on_path=crowd.scratch("dls_on_path", ti.i32, (rig.n_joints,)),
+                     eff_lim=crowd.scratch("dls_eff_lim", ti.f32, cfg["eff_lim"].shape))
+        small["on_path"].from_numpy(on_path_np)
+        small["eff_lim"].from_numpy(cfg["eff_lim"])
+        _store(crowd, key, cfg, small)
+    head = (ra["parent"], ra["offset"], ra["kind"], small["on_path"], ra["eff_joint"], small["eff_lim"],
+            *bundles.pose(crowd), *bundles.goal(crowd, orientations=False))
     L = settings.lanes()
     if L == 1:  # CUDA: one character per GPU thread, each pose in local arrays
         from crowd_ik.kernels import dls_free
 
-        dls_free.dls_solve_free(*head, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
-                                *bundles.result(crowd), rig.n_joints)
+        prepared(dls_free.dls_solve_free)(*head, req.max_iterations, req.tolerance, cfg["damping"],
+                                          cfg["length"], *bundles.result(crowd), rig.n_joints)
         return
     # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
-    dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints))(
+    prepared(dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints)))(
         *head, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
         *bundles.result(crowd),
     )
+
+
+def _loaded(crowd, key) -> tuple:
+    """(cfg, uploaded arrays) when the crowd's DLS scratch holds the settings of `key`, else (None, None)."""
+    held = crowd.__dict__.get("_dls_loaded")
+    return held[1:] if held is not None and held[0] == key else (None, None)
+
+
+def _store(crowd, key, cfg: dict, small: dict) -> None:
+    """Record what the DLS scratch now holds (one set at a time: each solver variant uploads its own)."""
+    crowd.__dict__["_dls_loaded"] = (key, cfg, small)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.ccd import moving_joints
 
@@ -65,8 +66,8 @@ def _limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -
     from crowd_ik.kernels import fabrik_limited_lanes, lane_plan
 
     ra, L = crowd.rig_arrays, settings.limited_lanes()
-    fabrik_limited_lanes.limited_solver(L, lane_plan.capacity(crowd.rig.n_joints),
-                                        lane_plan.capacity(crowd.rig.n_effectors))(
+    prepared(fabrik_limited_lanes.limited_solver(L, lane_plan.capacity(crowd.rig.n_joints),
+                                                 lane_plan.capacity(crowd.rig.n_effectors)))(
         *bundles.limited_rig(crowd)[:12], ra["bone"], active, *bundles.pose(crowd),
         *bundles.goal(crowd, orientations=False), lane_plan.streams(crowd.n, L), max_iterations, tolerance,
         *bundles.result(crowd),
@@ -86,10 +87,11 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
     cache = crowd.__dict__.setdefault("_fabrik_eff_move", {})
     if "move" not in cache:
         cache["move"] = moving_joints(crowd.rig)
-    fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w,
-                        max_iterations, tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero),
-                        *bundles.rotation_goal(crowd), cache["move"],
-                        req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd))
+    prepared(fabrik.fabrik_solve)(
+        *bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w, max_iterations,
+        tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero), *bundles.rotation_goal(crowd),
+        cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd),
+    )
 
 
 def _free(crowd, max_iterations: int, tolerance: float) -> None:
@@ -106,11 +108,11 @@ def _free(crowd, max_iterations: int, tolerance: float) -> None:
     V = ti.types.vector(L, ti.f32)
     proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
     b = crowd.buffers
-    fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
+    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
         ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
         lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd),
     )
-    fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
+    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J)))(
         ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
         min(P, lane_plan.MAX_STREAMS), b.error, b.iterations,
