@@ -79,14 +79,41 @@ def head_forward(method="fabrik", max_iterations=100, forward=0.3):
     return b[2] / max(sum(b), 1e-12), float(rep.error[0]), b
 
 
+def failure_profile(rep, crowd, eff, seed, top=6):
+    """Lines describing the unconverged characters of in_limit_poses: the effector farthest off, the iterations they
+    stopped at, and the DOFs that sit at a limit far more often in them than in the converged ones."""
+    rig = crowd.rig
+    bad = ~rep.converged
+    if not bad.any():
+        return ["no failures"]
+    pe = np.linalg.norm(crowd.effector_positions() - eff, axis=-1)[bad]
+    worst = np.bincount(pe.argmax(1), minlength=rig.n_effectors)
+    lines = ["worst effector: " + ", ".join(f"{e.name} {c}" for e, c in zip(rig.effectors, worst)) +
+             f"; iterations p10/50/90 {np.percentile(rep.iterations[bad], [10, 50, 90])}"]
+    lo, hi = rig.angle_limits()
+    at = (np.abs(crowd.angles() - lo) < 1e-3) | (np.abs(crowd.angles() - hi) < 1e-3)
+    goal = in_limit_angles(rig, len(bad), seed)
+    goal_at = ((np.abs(goal - lo) < 1e-3) | (np.abs(goal - hi) < 1e-3))[bad].mean(0)
+    names = [f"{j.name}[{d}]" for j in rig.joints for d in range(j.dof)]
+    gap = at[bad].mean(0) - at[~bad].mean(0)
+    for k in np.argsort(-gap)[:top]:
+        lines.append(f"  {names[k]} at a limit: {at[bad, k].mean():.2f} of failures, {at[~bad, k].mean():.2f} of "
+                     f"converged; in the failures' goal poses {goal_at[k]:.2f}")
+    return lines
+
+
 def main(argv):
     cik.init(arch="cpu")
     n = int(argv[1]) if len(argv) > 1 else 1000
     method = argv[2] if len(argv) > 2 else "fabrik"
     for seed in (0, 1, 2):
-        rep = in_limit_poses(n, seed, method)
+        rig = cik.Rig.humanoid()
+        eff, _ = pose_goals(rig, n, seed)
+        crowd = cik.Crowd(rig, n=n, spacing=2.0)
+        rep = crowd.solve(eff, method=method, max_iterations=100, tolerance=5e-3)
         print(f"in-limit poses seed {seed}: {np.mean(rep.converged) * 100:.1f} % converged of {n}, "
               f"median error {np.median(rep.error) * 1e3:.2f} mm, mean iterations {rep.iterations.mean():.1f}")
+        print("\n".join(failure_profile(rep, crowd, eff, seed)))
     err, _ = cross_body(method)
     print(f"cross-body hand_l: {err * 100:.2f} cm off")
     ratio, herr, b = head_forward(method)
