@@ -333,20 +333,25 @@ class Crowd:
 
     def _report(self, req: SolveRequest) -> SolveReport:
         b = self.buffers
-        error, iters, stalled = b.error.copy(), b.iterations.copy(), b.stalled.astype(bool)
+        error, iters = b.error.copy(), b.iterations.copy()
         status = np.full(self.n, Status.CONVERGED, np.int8)
-        turn = np.zeros(self.n, np.float32)
         if req.orientations is not None or req.rotations is not None:
             turn = rotation_error(self.rig, self._read_world_rot(), req)
-        # the others converged (in a game step, nearly all of them)
-        left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
-        if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
-            far = np.zeros((left.size, self.rig.n_effectors), bool)
+            left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         else:
-            d = b.targets[left] - self._base[left, None, :]
-            far = np.einsum("nek,nek->ne", d, d) > np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
-        status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
-                                np.where(stalled[left], Status.STALLED, Status.MAX_ITERATIONS))
+            turn = np.zeros(self.n, np.float32)
+            left = np.flatnonzero(error > req.tolerance)
+        if left.size:  # the others converged (in a game step, nearly all of them)
+            if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
+                far = np.zeros((left.size, self.rig.n_effectors), bool)
+            else:
+                reach = self.__dict__.get("_reach_sq")
+                if reach is None:  # the fixed-root reach test's squared bound, per effector
+                    reach = self._reach_sq = np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
+                d = b.targets[left] - self._base[left, None, :]
+                far = np.einsum("nek,nek->ne", d, d) > reach
+            status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
+                                    np.where(b.stalled[left] != 0, Status.STALLED, Status.MAX_ITERATIONS))
         return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)
 
 

@@ -4,6 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
+_UNIT_AXES: dict = {}  # id(eff_axis) -> (eff_axis, its rows as float64 unit vectors); one entry per rig seen
+
+
+def _unit_axes(eff_axis: np.ndarray) -> np.ndarray:
+    """eff_axis (E, 3) as float64 unit rows (zero rows stay zero), computed once per array."""
+    held = _UNIT_AXES.get(id(eff_axis))
+    if held is None or held[0] is not eff_axis:
+        axis = eff_axis.astype(np.float64)
+        held = _UNIT_AXES[id(eff_axis)] = (eff_axis, axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True),
+                                                                         1e-30))
+        while len(_UNIT_AXES) > 64:  # rigs come and go in tests: keep the newest
+            del _UNIT_AXES[next(iter(_UNIT_AXES))]
+    return held[1]
+
 
 def rotation_error(rig, world_rot: np.ndarray, req) -> np.ndarray:
     """(N,) float32 radians: per character the max over its effectors with an axis (orientation) target (weight
@@ -18,13 +32,18 @@ def rotation_error(rig, world_rot: np.ndarray, req) -> np.ndarray:
     eff = rig.arrays["eff_joint"]
     q = world_rot[:, eff].astype(np.float64)  # (N, E, 4)
     if req.orientations is not None:
-        axis = rig.arrays["eff_axis"].astype(np.float64)  # (E, 3)
-        axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-30)
-        u, w = q[..., :3], q[..., 3:]
-        t = 2.0 * np.cross(u, np.broadcast_to(axis, u.shape))
-        world_axis = axis + w * t + np.cross(u, t)
-        has = (np.sum(req.orientations * req.orientations, axis=-1) > 0) & (req.weights > 0)
-        cos = np.clip(np.sum(world_axis * req.orientations, axis=-1), -1.0, 1.0)
+        axis = _unit_axes(rig.arrays["eff_axis"])  # (E, 3) float64
+        # world axis = axis + w t + u x t, t = 2 u x axis (q = (u, w)); the cross products written out per
+        # component (np.cross's own operations, in its order, without its per-call axis handling)
+        ux, uy, uz, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+        ax, ay, az = axis[:, 0], axis[:, 1], axis[:, 2]
+        tx, ty, tz = 2.0 * (uy * az - uz * ay), 2.0 * (uz * ax - ux * az), 2.0 * (ux * ay - uy * ax)
+        o = req.orientations
+        ox, oy, oz = o[..., 0], o[..., 1], o[..., 2]
+        cos = ((ax + w * tx + (uy * tz - uz * ty)) * ox + (ay + w * ty + (uz * tx - ux * tz)) * oy
+               + (az + w * tz + (ux * ty - uy * tx)) * oz)
+        has = (ox * ox + oy * oy + oz * oz > 0) & (req.weights > 0)
+        np.clip(cos, -1.0, 1.0, out=cos)
         out = np.maximum(out, np.max(np.where(has, np.arccos(cos), 0.0), axis=1))
     if req.rotations is not None:  # full rotation targets: 2 acos |<q, q_target>|
         dot = np.abs(np.sum(q * req.rotations.astype(np.float64), axis=-1))

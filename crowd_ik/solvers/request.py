@@ -58,6 +58,8 @@ def rows_or_nan(value, name: str, shape: tuple, limit: float | None = None) -> t
     except ValueError:
         raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
     nan = np.isnan(arr)
+    if not nan.any():  # every row given (a game's orientations): nothing to sort out
+        return as_array(arr, name, shape, limit=limit), np.ones(shape[:-1], bool)
     none, some = nan[..., 0].copy(), nan[..., 0].copy()  # column by column: np.all(axis=-1) of 3 is ~10x slower
     for c in range(1, shape[-1]):
         none &= nan[..., c]
