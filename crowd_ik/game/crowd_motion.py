@@ -24,6 +24,7 @@ import numpy as np
 
 from crowd_ik.game import streams
 from crowd_ik.kernels.serial_loops import serial_for
+from crowd_ik.prepared import prepared
 
 WALK_FACTOR = (0.7, 1.3)  # each bystander's preferred speed is walk_speed times a factor in this range
 WANDER_RADIUS = 3.0  # m (times the scale): the next goal lies within this distance
@@ -69,6 +70,8 @@ class CrowdMotion:
         self.flee_time = np.zeros(n)
         self.steer = np.zeros((n, 2))
         self.radius = np.full(n, BODY_RADIUS * s, np.float32)
+        self._sep_sizes = None  # separate's kept input and output buffers, for these (bodies, grid cells + 1)
+        self._sep_bufs = ()
 
     @property
     def walking_speed(self) -> np.ndarray:
@@ -153,10 +156,19 @@ class CrowdMotion:
         order = np.argsort(key, kind="stable").astype(np.int32)
         start = np.zeros(int(cells[0] * cells[1]) + 1, np.int32)
         np.cumsum(np.bincount(key, minlength=int(cells[0] * cells[1])), out=start[1:])
-        steer = np.zeros_like(pts)
-        push = np.zeros_like(pts)
-        gk.separate(pts, radius, kind, order, start, float(lo[0]), float(lo[1]), float(cell), int(cells[0]),
-                    int(cells[1]), float(reach), steer, push, serial_for(len(pts)))
+        # into buffers kept while the sizes stay (they change when a shooter falls or the grid grows), so that
+        # the launch stays bound (crowd_ik.prepared)
+        sizes = (len(pts), len(start))
+        if self._sep_sizes != sizes:
+            self._sep_sizes = sizes
+            self._sep_bufs = (np.zeros_like(pts), np.zeros_like(radius), np.zeros_like(kind), np.zeros_like(order),
+                              np.zeros_like(start), np.zeros_like(pts), np.zeros_like(pts))
+        args = self._sep_bufs
+        for buf, value in zip(args, (pts, radius, kind, order, start)):
+            np.copyto(buf, value)
+        steer, push = args[5:]
+        prepared(gk.separate)(*args[:5], float(lo[0]), float(lo[1]), float(cell), int(cells[0]), int(cells[1]),
+                              float(reach), steer, push, serial_for(len(pts)))
         n = self.n
         self.steer = steer[:n].astype(np.float64)
         self.pos += push[:n]
