@@ -41,7 +41,8 @@ import time
 
 import numpy as np
 
-DEFAULT_SLOTS = 4  # frame buffers in flight: one being drawn, up to three waiting for or in the writer
+from crowd_ik.io.render_process import DEFAULT_SLOTS, RenderProcess
+
 PROCESS_MIN_PIXELS = 640 * 360  # render_process=None: frames at least this big are drawn in a second process
 PROCESS_MIN_FRAMES = 60  # ... in a video at least this long
 PROCESS_START_S = 2.0  # about what the drawing process takes to start on the 2-core machine (warm cache)
@@ -178,8 +179,6 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     cpu_percent ((cpu_s + render_cpu_s + encoder_cpu_s) / wall_s) and the mode ("serial", "pipelined",
     "render process").
     """
-    from crowd_ik.io.render_process import RenderProcess
-
     if render_process is None:
         render_process = wants_render_process(world.scene)
     started = render_process if isinstance(render_process, RenderProcess) else None

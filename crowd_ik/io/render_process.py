@@ -35,8 +35,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from crowd_ik.io.pipeline import DEFAULT_SLOTS
-
+DEFAULT_SLOTS = 4  # frames in flight: one being drawn, up to three waiting for or in the writer (io.pipeline too)
 _POLL_S = 0.05  # how often a blocked take() checks whether the writer has failed
 _START_TIMEOUT_S = 600.0  # the child's first answer (imports, Taichi start, kernel load or a cold compile)
 _CAPSULE_FLOATS = 10  # a (3), b (3), radius, colour (3)
