@@ -112,11 +112,13 @@ def _free(crowd, req) -> None:
 
 
 def _loaded(crowd, key) -> tuple:
-    """(cfg, uploaded arrays) when the crowd's DLS scratch holds the settings of `key`, else (None, None)."""
+    """(cfg's damping and length, uploaded arrays) when the crowd's DLS scratch holds the settings of `key`, else
+    (None, None)."""
     held = crowd.__dict__.get("_dls_loaded")
     return held[1:] if held is not None and held[0] == key else (None, None)
 
 
 def _store(crowd, key, cfg: dict, small: dict) -> None:
-    """Record what the DLS scratch now holds (one set at a time: each solver variant uploads its own)."""
-    crowd.__dict__["_dls_loaded"] = (key, cfg, small)
+    """Record what the DLS scratch now holds (one set at a time: each solver variant uploads its own) and the two
+    settings the launch takes besides (the rest of cfg is not kept)."""
+    crowd.__dict__["_dls_loaded"] = (key, dict(damping=cfg["damping"], length=cfg["length"]), small)
