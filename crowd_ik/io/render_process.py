@@ -98,10 +98,7 @@ def _draw_loop(init_kwargs: dict, inbox, outbox) -> None:
         outbox.send(("error", -1, type(exc).__name__, _one_line(exc)))
         return
     outbox.send(("ready",))
-    try:
-        msg = inbox.recv()
-    except EOFError:
-        return
+    msg = _next_message(inbox)
     if msg is None:
         return
     _, shm_name, layout, camera = msg
@@ -121,10 +118,7 @@ def _draw_loop(init_kwargs: dict, inbox, outbox) -> None:
 
 def _draw_frames(renderer, slots: list, inbox, outbox) -> None:
     while True:
-        try:
-            msg = inbox.recv()
-        except EOFError:
-            return
+        msg = _next_message(inbox)
         if msg is None:
             return
         s, m, k, camera, trails, hud_lines = msg
@@ -139,6 +133,14 @@ def _draw_frames(renderer, slots: list, inbox, outbox) -> None:
             outbox.send(("error", s, type(exc).__name__, _one_line(exc)))
         finally:
             renderer.frame_source = None
+
+
+def _next_message(inbox):
+    """The main process's next message; None for its stop (None) or the end of the pipe."""
+    try:
+        return inbox.recv()
+    except EOFError:
+        return None
 
 
 def _one_line(exc: BaseException) -> str:
