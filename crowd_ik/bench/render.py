@@ -4,8 +4,9 @@
 Scenes and sizes are the play defaults of the issue's targets: arena and crowd_1k at 1280x720,
 stress_10k at 640x360. Each scene gets a fresh World that first renders a few frames untimed (kernels
 compiled or loaded from the offline cache, buffers touched), then a second World from frame 0 renders
-`frames` frames through io.pipeline.render_video; its numbers (fps, per-stage milliseconds, CPU use)
-are the record. `--compare` reports the change of fps per scene, so a slower renderer shows up there.
+`frames` frames through io.pipeline.render_video (in a drawing process, started before the warm-up,
+where play would use one); its numbers (fps, per-stage milliseconds, CPU use) are the record.
+`--compare` reports the change of fps per scene, so a slower renderer shows up there.
 """
 
 from __future__ import annotations
@@ -21,21 +22,29 @@ WARM_FRAMES = 3
 def render_scene(name: str, size: tuple[int, int], frames: int) -> dict:
     """Render `frames` frames of shipped scene `name` at `size` after a warm-up; render_video's numbers."""
     from crowd_ik.game.world import World
-    from crowd_ik.io.pipeline import render_video
+    from crowd_ik.io.pipeline import render_video, wants_render_process
+    from crowd_ik.io.render_process import RenderProcess
     from crowd_ik.io.video import open_sink
     from crowd_ik.scene import load_scene, scene_with
     from crowd_ik.session import frames as step_frames
 
     w, h = size
     scene = scene_with(load_scene(name), frames=max(frames, WARM_FRAMES), width=w, height=h)
-    warm = World(scene)
-    for _ in step_frames(warm, WARM_FRAMES):
-        warm.render()
-    world = World(scene)
-    with tempfile.TemporaryDirectory(prefix="crowd-ik-bench-render-") as tmp:
-        sink = open_sink(os.path.join(tmp, f"{name}.mp4"), scene.video.fps, size)
-        stats = render_video(world, step_frames(world, frames), sink)
-        stats["bytes"] = os.path.getsize(sink.path)
+    # as play does: a drawing process (when the pipeline uses one) gets ready during the warm-up
+    early = RenderProcess() if wants_render_process(scene) else None
+    try:
+        warm = World(scene)
+        for _ in step_frames(warm, WARM_FRAMES):
+            warm.render()
+        world = World(scene)
+        with tempfile.TemporaryDirectory(prefix="crowd-ik-bench-render-") as tmp:
+            sink = open_sink(os.path.join(tmp, f"{name}.mp4"), scene.video.fps, size)
+            stats = render_video(world, step_frames(world, frames), sink,
+                                 render_process=early if early is not None else False)
+            stats["bytes"] = os.path.getsize(sink.path)
+    finally:
+        if early is not None:
+            early.close(drain=False)  # render_video closed it already, unless something failed before
     return dict(scene=name, size=[w, h], characters=scene.characters.count, **stats)
 
 
