@@ -1,12 +1,16 @@
-"""The video pipeline: simulate and draw on the main thread while a writer thread feeds the sink and the
-encoder works in its own process, so that the next frame is simulated while this one is encoded (issue 20).
+"""The video pipeline: simulate on the main thread, draw there or in a drawing process, while a writer thread
+feeds the sink and the encoder works in its own process, so that the next frame is simulated while this one
+is drawn and encoded (issue 20).
 
 Stages of a frame and where they run:
   simulate  World.step (game logic, IK, bullets)                          main thread, Taichi + NumPy
-  draw      World.render: primitives, raster kernels, trails and HUD, copy main thread, Taichi + NumPy
+  draw      World.primitives and the HUD lines                            main thread, NumPy
+            raster kernels, trails and HUD, copy (Renderer.render)       the drawing process
+                                                                          (io.render_process), or the
+                                                                          main thread (render_process=False)
   write     the frame into the sink (a pipe into ffmpeg, VP8, PNG encoding) writer thread
   encode    x264 / libvpx                                                  the encoder's own process
-Every Taichi launch stays on the main thread: Taichi's CPU runtime has one thread pool with one task
+What follows is about the in-process path. Every Taichi launch of a process stays on its main thread: Taichi's CPU runtime has one thread pool with one task
 slot, so kernels cannot be launched from two threads at once (and its kernels already use every core).
 Taichi 1.7 also holds the GIL for the whole of a kernel launch (measured: a Python thread got about 5 %
 of its time while a 0.4 s kernel ran), so a second Python thread only runs while the main thread is
