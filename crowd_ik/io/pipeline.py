@@ -45,15 +45,15 @@ import time
 
 import numpy as np
 
+from crowd_ik.io.handover import Handover
 from crowd_ik.io.render_process import DEFAULT_SLOTS, RenderProcess
 
 PROCESS_MIN_PIXELS = 640 * 360  # render_process=None: frames at least this big are drawn in a second process
 PROCESS_MIN_FRAMES = 60  # ... in a video at least this long
 PROCESS_START_S = 2.0  # about what the drawing process takes to start on the 2-core machine (warm cache)
-_POLL_S = 0.05  # how often a blocked hand-over checks whether the writer has failed
 
 
-class FrameWriter:
+class FrameWriter(Handover):
     """A writer thread that writes frames to `sink` in order (painting each one's overlay first, if given).
 
     take() lends a free (H, W, 3) uint8 buffer of the ring; submit(frame, overlay) queues it (the
@@ -65,15 +65,13 @@ class FrameWriter:
     def __init__(self, sink, shape: tuple[int, int, int], slots: int = DEFAULT_SLOTS):
         if isinstance(slots, bool) or not isinstance(slots, int) or slots < 2:
             raise ValueError(f"FrameWriter: slots: expected an integer >= 2 (got {slots!r})")
+        super().__init__()
         self.sink = sink
-        self._free: queue.Queue = queue.Queue()
         for _ in range(slots):
             self._free.put(np.empty(shape, np.uint8))
         self._todo: queue.Queue = queue.Queue()
-        self._error: BaseException | None = None
-        self._discard = threading.Event()  # set: drop what is still queued (a failure on either side)
         self.frames = 0
-        self.overlay_s = self.write_s = self.cpu_s = self.wait_s = 0.0
+        self.overlay_s = self.write_s = self.cpu_s = 0.0
         self._thread = threading.Thread(target=self._run, name="crowd-ik-writer", daemon=True)
         self._thread.start()
 
@@ -100,23 +98,6 @@ class FrameWriter:
                 self._free.put(frame)
         self.cpu_s = time.thread_time() - cpu0
 
-    def _check(self) -> None:
-        if self._error is not None:
-            raise self._error
-
-    def take(self) -> np.ndarray:
-        """A free frame buffer (waits while every buffer is in flight); raises the writer's error."""
-        t0 = time.perf_counter()
-        try:
-            while True:
-                self._check()
-                try:
-                    return self._free.get(timeout=_POLL_S)
-                except queue.Empty:
-                    continue
-        finally:
-            self.wait_s += time.perf_counter() - t0
-
     def submit(self, frame: np.ndarray, overlay=None) -> None:
         """Queue a buffer from take(), to be painted with `overlay` (view.render.Overlay or None) and written."""
         self._check()
@@ -131,13 +112,7 @@ class FrameWriter:
         if not drain:
             self._discard.set()
         self._todo.put(None)
-        interrupted = None
-        while self._thread.is_alive():
-            try:
-                self._thread.join()
-            except KeyboardInterrupt as exc:
-                self._discard.set()
-                interrupted = exc
+        interrupted = self._join_writer()
         if drain:
             self._check()
         if interrupted is not None:

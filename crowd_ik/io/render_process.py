@@ -27,7 +27,6 @@ and the child exits when it reads the end of it.
 from __future__ import annotations
 
 import multiprocessing
-import queue
 import signal
 import threading
 import time
@@ -35,8 +34,9 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from crowd_ik.io.handover import Handover
+
 DEFAULT_SLOTS = 4  # frames in flight: one being drawn, up to three waiting for or in the writer (io.pipeline too)
-_POLL_S = 0.05  # how often a blocked take() checks whether the writer has failed
 _START_TIMEOUT_S = 600.0  # the child's first answer (imports, Taichi start, kernel load or a cold compile)
 _CAPSULE_FLOATS = 10  # a (3), b (3), radius, colour (3)
 _SPHERE_FLOATS = 7  # centre (3), radius, colour (3)
@@ -147,7 +147,7 @@ def _one_line(exc: BaseException) -> str:
     return " | ".join(str(exc).splitlines()) or type(exc).__name__
 
 
-class RenderProcess:
+class RenderProcess(Handover):
     """A drawing child process and the writer thread that puts its frames into a sink, in order.
 
     RenderProcess() starts the child at once (imports, Taichi, the frame kernel loaded), so that it can get
@@ -166,6 +166,7 @@ class RenderProcess:
     def __init__(self):
         from crowd_ik import runtime
 
+        super().__init__()
         ctx = multiprocessing.get_context("spawn")
         self._inbox_r, self._inbox = ctx.Pipe(duplex=False)
         self._outbox, self._outbox_w = ctx.Pipe(duplex=False)
@@ -174,14 +175,11 @@ class RenderProcess:
         self._proc.start()
         self._inbox_r.close()
         self._outbox_w.close()
-        self._shm = self._views = self._thread = None
-        self._free: queue.Queue = queue.Queue()
-        self._error: BaseException | None = None
-        self._discard = threading.Event()
+        self._shm = self._views = None
         self._sent = 0
         self._closed = False
         self.frames = 0
-        self.raster_s = self.overlay_s = self.write_s = self.wait_s = self.child_cpu_s = 0.0
+        self.raster_s = self.overlay_s = self.write_s = self.child_cpu_s = 0.0
 
     def open(self, sink, camera, max_capsules: int, max_spheres: int, slots: int = DEFAULT_SLOTS) -> RenderProcess:
         """Allocate `slots` shared slots for frames of camera's size and these maxima, and start writing into
@@ -254,26 +252,7 @@ class RenderProcess:
         for s in range(self.layout.slots):  # unblocks a waiting take(), which then raises the error
             self._free.put(s)
 
-    # ---------------------------------------------------------------- main thread
-    def _check(self) -> None:
-        if self._error is not None:
-            raise self._error
-
-    def take(self) -> int:
-        """A free slot's index (waits while every slot is in flight); raises the child's or writer's error."""
-        t0 = time.perf_counter()
-        try:
-            while True:
-                self._check()
-                try:
-                    s = self._free.get(timeout=_POLL_S)
-                except queue.Empty:
-                    continue
-                self._check()
-                return s
-        finally:
-            self.wait_s += time.perf_counter() - t0
-
+    # ---------------------------------------------------------------- main thread (take(): Handover)
     def submit(self, s: int, prim: dict, camera, hud_lines) -> None:
         """Hand slot s to the child: prim is World.primitives()' dict (capsules, spheres, trails)."""
         self._check()
@@ -298,17 +277,11 @@ class RenderProcess:
         self._closed = True
         if not drain:
             self._discard.set()
-        interrupted = None
         try:
             self._inbox.send(None)
         except OSError:
             pass  # the child is gone; the writer has seen it
-        while self._thread is not None and self._thread.is_alive():
-            try:
-                self._thread.join()
-            except KeyboardInterrupt as exc:
-                self._discard.set()
-                interrupted = exc
+        interrupted = self._join_writer()
         if self._thread is None:  # never opened: the child's last word is its CPU time
             while self._outbox.poll(10):
                 try:
