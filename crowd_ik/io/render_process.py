@@ -265,7 +265,11 @@ class RenderProcess(Handover):
         c[:m, 0:3], c[:m, 3:6], c[:m, 6], c[:m, 7:10] = caps["a"], caps["b"], caps["radius"], caps["color"]
         p[:k, 0:3], p[:k, 3], p[:k, 4:7] = sph["center"], sph["radius"], sph["color"]
         trails = prim["trails"] if len(prim["trails"]) else None
-        self._inbox.send((s, m, k, camera, trails, list(hud_lines) if hud_lines else None))
+        try:
+            self._inbox.send((s, m, k, camera, trails, list(hud_lines) if hud_lines else None))
+        except OSError:  # the child is gone: its pipe is closed
+            self._check()
+            raise RuntimeError("the render process stopped unexpectedly") from None
         self._sent += 1
 
     def close(self, drain: bool = True) -> None:
