@@ -1,6 +1,6 @@
 """FABRIK for a Crowd: which kernel solves a request, and its launch.
 
-A constraint-free rig without orientation targets runs the lane kernels (kernels/fabrik_lanes.py:
+A constraint-free rig without orientation targets runs the lane kernels (solvers/fabrik_free.py, kernels/fabrik_lanes.py:
 characters as SIMD lanes, then the rotations recovered in a second pass). With CROWD_IK_LIMITED_LANES=1 a
 joint-limited rig whose characters all weight the same effectors, without orientation, rotation or pole
 targets, runs kernels/fabrik_limited_lanes.py (settings.limited_lanes says why it is off by default);
@@ -15,6 +15,7 @@ import numpy as np
 from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.ccd import moving_joints
+from crowd_ik.solvers.fabrik_free import solve_free
 
 
 def solve(crowd, req) -> None:
@@ -22,7 +23,7 @@ def solve(crowd, req) -> None:
         _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1, req=req)
         return
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
-        _free(crowd, req.max_iterations, req.tolerance)
+        solve_free(crowd, req.max_iterations, req.tolerance, _general)
         return
     active = _lane_active(crowd, req)
     if active is not None:
@@ -91,29 +92,4 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
         *bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w, max_iterations,
         tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero), *bundles.rotation_goal(crowd),
         cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd),
-    )
-
-
-def _free(crowd, max_iterations: int, tolerance: float) -> None:
-    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
-    from crowd_ik.kernels import fabrik_lanes, lane_plan
-
-    ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
-    J, E = crowd.rig.n_joints, crowd.rig.n_effectors
-    if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
-        _general(crowd, max_iterations, tolerance, recover_each_iteration=0)
-        return
-    LP = lane_plan.pass_lanes(L)
-    P = lane_plan.packets(crowd.n, L)
-    V = ti.types.vector(L, ti.f32)
-    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
-    b = crowd.buffers
-    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
-        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
-        lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd),
-    )
-    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J)))(
-        ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
-        min(P, lane_plan.MAX_STREAMS), b.error, b.iterations,
     )

@@ -1,0 +1,33 @@
+"""Constraint-free FABRIK for a Crowd without orientation targets: the lane kernels' launch (kernels/fabrik_lanes.py,
+characters as SIMD lanes, then the rotations recovered in a second pass)."""
+
+from __future__ import annotations
+
+from crowd_ik.prepared import prepared
+from crowd_ik.solvers import bundles, settings
+
+
+def solve_free(crowd, max_iterations: int, tolerance: float, general) -> None:
+    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations;
+    on CUDA (one lane) `general` (solvers/fabrik._general), with the rotations recovered once."""
+    from crowd_ik.kernels import fabrik_lanes, lane_plan
+
+    ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
+    J, E = crowd.rig.n_joints, crowd.rig.n_effectors
+    if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
+        general(crowd, max_iterations, tolerance, recover_each_iteration=0)
+        return
+    LP = lane_plan.pass_lanes(L)
+    P = lane_plan.packets(crowd.n, L)
+    V = ti.types.vector(L, ti.f32)
+    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
+    b = crowd.buffers
+    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
+        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
+        lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd),
+    )
+    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J)))(
+        ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
+        min(P, lane_plan.MAX_STREAMS), b.error, b.iterations,
+    )
