@@ -150,14 +150,16 @@ def test_play_through_the_render_process_writes_the_in_process_frames(scene, cla
 def test_play_draws_in_process_when_labels_read_the_z_buffer(scene, monkeypatch):
     from argparse import Namespace
 
-    from crowd_ik.commands.play import _start_render_process
+    from crowd_ik.commands.play import _draws_in_process
+    from crowd_ik.io.render_process import started_early
 
     monkeypatch.setenv("CROWD_IK_RENDER_PROCESS", "1")
     base = dict(still=None, serial=False, labels=None)
     for change in ({"labels": "l.jsonl"}, {"serial": True}, {"still": 3}):
-        assert _start_render_process(Namespace(**{**base, **change}), scene) is None
-    rp = _start_render_process(Namespace(**base), scene)
-    try:
+        assert _draws_in_process(Namespace(**{**base, **change}), scene) is False
+    assert _draws_in_process(Namespace(**base), scene) is True
+    with started_early(False) as none:
+        assert none is None
+    with started_early(True) as rp:
         assert isinstance(rp, RenderProcess)
-    finally:
-        rp.close()
+    assert rp._closed and not rp._proc.is_alive()  # closed on the way out, the child gone

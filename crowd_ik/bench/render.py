@@ -23,7 +23,7 @@ def render_scene(name: str, size: tuple[int, int], frames: int) -> dict:
     """Render `frames` frames of shipped scene `name` at `size` after a warm-up; render_video's numbers."""
     from crowd_ik.game.world import World
     from crowd_ik.io.pipeline import render_video, wants_render_process
-    from crowd_ik.io.render_process import RenderProcess
+    from crowd_ik.io.render_process import started_early
     from crowd_ik.io.video import open_sink
     from crowd_ik.scene import load_scene, scene_with
     from crowd_ik.session import frames as step_frames
@@ -31,8 +31,7 @@ def render_scene(name: str, size: tuple[int, int], frames: int) -> dict:
     w, h = size
     scene = scene_with(load_scene(name), frames=max(frames, WARM_FRAMES), width=w, height=h)
     # as play does: a drawing process (when the pipeline uses one) gets ready during the warm-up
-    early = RenderProcess() if wants_render_process(scene) else None
-    try:
+    with started_early(wants_render_process(scene)) as early:
         warm = World(scene)
         for _ in step_frames(warm, WARM_FRAMES):
             warm.render()
@@ -42,9 +41,6 @@ def render_scene(name: str, size: tuple[int, int], frames: int) -> dict:
             stats = render_video(world, step_frames(world, frames), sink,
                                  render_process=early if early is not None else False)
             stats["bytes"] = os.path.getsize(sink.path)
-    finally:
-        if early is not None:
-            early.close(drain=False)  # render_video closed it already, unless something failed before
     return dict(scene=name, size=[w, h], characters=scene.characters.count, **stats)
 
 

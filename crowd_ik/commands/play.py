@@ -118,27 +118,21 @@ def run(args) -> int:
     out = output_path(args, scene)
     check_outputs(args, scene, out)
     arch = runtime.init(arch=args.arch, threads=args.threads)
-    early = _start_render_process(args, scene)
-    try:
+    from crowd_ik.io.render_process import started_early
+
+    with started_early(_draws_in_process(args, scene)) as early:
         return _play(args, scene, log, out, arch, early, t_start)
-    finally:
-        if early is not None:
-            early.close(drain=False)  # render_video closed it already, unless something failed before
 
 
-def _start_render_process(args, scene):
-    """A RenderProcess for a video that the pipeline will draw in a second process, started now so that it
-    gets ready while the World is built (io.render_process); None otherwise: a still, --serial, and
-    --labels, whose visibility test reads each frame's z-buffer in this process right after it is drawn."""
+def _draws_in_process(args, scene) -> bool:
+    """Whether the pipeline will draw this video in a second process (io.render_process), which play then starts
+    before building the World: not for a still, --serial, or --labels (whose visibility test reads each frame's
+    z-buffer in this process right after it is drawn)."""
     from crowd_ik.io.pipeline import wants_render_process
 
     if args.still is not None or getattr(args, "serial", False) or args.labels is not None:
-        return None
-    if not wants_render_process(scene):
-        return None
-    from crowd_ik.io.render_process import RenderProcess
-
-    return RenderProcess()
+        return False
+    return wants_render_process(scene)
 
 
 def _play(args, scene, log, out, arch, early, t_start) -> int:

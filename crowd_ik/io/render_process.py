@@ -26,6 +26,7 @@ and the child exits when it reads the end of it.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import signal
 import threading
@@ -311,3 +312,16 @@ class RenderProcess(Handover):
 
 
 __all__ = ["RenderProcess"]
+
+
+@contextlib.contextmanager
+def started_early(wanted: bool):
+    """A RenderProcess started now, so that it gets ready while the caller builds its World (None when not
+    wanted); on the way out it is closed without draining: render_video closes it when the video is done, so
+    this only stops a child that something failed to hand over to."""
+    proc = RenderProcess() if wanted else None
+    try:
+        yield proc
+    finally:
+        if proc is not None:
+            proc.close(drain=False)
