@@ -1,0 +1,124 @@
+"""sin, cos, atan2, asin and acos as polynomials on lane packets: element-wise code without libm calls.
+
+Taichi compiles ``ti.sin`` (and the others) on a ``ti.types.vector(L, ti.f32)`` to one libm call per lane,
+which neither vectorises nor inlines; these are the same functions written with +, *, /, sqrt, floor and
+selects only, so LLVM packs them like the arithmetic around them, and every lane performs the same operations
+whatever its lane-mates hold. Each works on scalars as well as on lane vectors (Taichi instantiates it for
+what it is called with).
+
+The polynomials are Cephes' single-precision minimax fits (Moshier), the range reductions theirs too:
+- sin, cos: x = k pi/2 + r with k = round(2x/pi), r = (x - k C1) - k C2 (pi/2 = C1 + C2, the first part
+  in float64 and exact), a polynomial for sin or cos of r on [-pi/4, pi/4] chosen and signed by k mod 4.
+  Within 1.5 float32 ulp of the true value on [-4, 4] and 2.3 ulp for |x| <= TRIG_RANGE (tests/test_lane_trig.py:
+  float64 NumPy on dense grids and at the float32 nearest each k pi/2, where the result is tiny) (about 205,000); beyond it
+  the error grows as |x| 2^-53 (k C1 rounds) and the result stays finite and within [-1, 1]. (The kernels'
+  angles are within a few pi.)
+- atan2(y, x): a = min(|x|, |y|) / max(|x|, |y|) on [0, 1], above tan(pi/8) reduced by atan(a) = pi/4 +
+  atan((a - 1) / (a + 1)) (numerator and denominator selected before the one division), an odd polynomial on
+  [-tan(pi/8), tan(pi/8)], then the octant. atan2(0, 0) = 0; the sign of a zero is ignored (fast math does
+  not keep it): atan2(+-0, x < 0) = pi. Within 2.9 ulp.
+- asin, acos: for |x| <= 1/2 asin(x) = x + x^3 P(x^2); above, asin(|x|) = pi/2 - 2 asin(sqrt((1 - |x|) / 2)),
+  so one polynomial of a selected argument serves both halves and both functions. Within 2.4 ulp (just above
+  1/2, where pi/2 - 2p doubles p's rounding); NaN outside [-1, 1].
+"""
+
+import taichi as ti
+
+PI = 3.141592653589793
+HALF_PI = 1.5707963267948966
+QUARTER_PI = 0.7853981633974483
+TWO_OVER_PI = 0.6366197723675814
+# pi/2 = C1 + C2: C1 has 36 significant bits, so k C1 is exact in float64 for |k| < 2^17
+C1, C2 = 1.5707963267923333, 2.563344151594519e-12
+TRIG_RANGE = 2.0**17 * HALF_PI  # |x| up to which the reduction is exact (about 205,000)
+TAN_PI_8 = 0.41421356237309503
+
+
+@ti.func
+def _sin_poly(r, z):
+    """sin(r) for |r| <= pi/4, z = r^2."""
+    return ((-1.9515295891e-4 * z + 8.3321608736e-3) * z - 1.6666654611e-1) * z * r + r
+
+
+@ti.func
+def _cos_poly(z):
+    """cos(r) for |r| <= pi/4, z = r^2."""
+    return ((2.443315711809948e-5 * z - 1.388731625493765e-3) * z + 4.166664568298827e-2) * z * z - 0.5 * z + 1.0
+
+
+@ti.func
+def sin_cos(x):
+    """(sin x, cos x) from one range reduction."""
+    # r = x - k pi/2 as (x - k C1) in float64, exact, then - k C2 in float32. Fast math reassociates a split done
+    # in one type, x - k P1 - k P2 -> x - k (P1 + P2), which loses it (sin near pi was 15 % off), but not
+    # across the conversion.
+    xd = ti.cast(x, ti.f64)
+    k = ti.floor(xd * ti.f64(TWO_OVER_PI) + 0.5)  # ti.f64(): a bare literal would be a float32 constant
+    r = ti.cast(xd - k * ti.f64(C1), ti.f32) - ti.cast(k, ti.f32) * C2
+    q = ti.cast(k - 4.0 * ti.floor(0.25 * k), ti.f32)  # k mod 4 as 0.0, 1.0, 2.0 or 3.0
+    r = ti.math.clamp(r, -0.8, 0.8)  # only far past TRIG_RANGE does r leave [-pi/4, pi/4]: keep the result bounded
+    z = r * r
+    s = _sin_poly(r, z)
+    c = _cos_poly(z)
+    odd = (q == 1.0) | (q == 3.0)
+    sv = ti.select(odd, c, s)
+    cv = ti.select(odd, s, c)
+    sv = ti.select(q >= 2.0, -sv, sv)
+    cv = ti.select((q == 1.0) | (q == 2.0), -cv, cv)
+    return sv, cv
+
+
+@ti.func
+def sin(x):
+    s, _c = sin_cos(x)
+    return s
+
+
+@ti.func
+def cos(x):
+    _s, c = sin_cos(x)
+    return c
+
+
+@ti.func
+def atan2(y, x):
+    """The angle of (x, y) in [-pi, pi]; 0 at (0, 0)."""
+    ax, ay = ti.abs(x), ti.abs(y)
+    mn, mx = ti.min(ax, ay), ti.max(ax, ay)
+    big = mn > TAN_PI_8 * mx  # a = mn / mx > tan(pi/8): atan(a) = pi/4 + atan((mn - mx) / (mn + mx))
+    num = ti.select(big, mn - mx, mn)
+    den = ti.select(big, mn + mx, mx)
+    t = num / ti.select(den > 0.0, den, 1.0)
+    z = t * t
+    a = (((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z - 3.33329491539e-1) * z * t + t
+    a = ti.select(big, a + QUARTER_PI, a)
+    a = ti.select(ay > ax, HALF_PI - a, a)
+    a = ti.select(x < 0.0, PI - a, a)
+    return ti.select(y < 0.0, -a, a)
+
+
+@ti.func
+def _asin_half(x):
+    """(asin |x| folded: p with asin|x| = p for |x| <= 1/2 or pi/2 - 2p above, big = |x| > 1/2)."""
+    a = ti.abs(x)
+    big = a > 0.5
+    z = ti.select(big, 0.5 * (1.0 - a), a * a)
+    s = ti.select(big, ti.sqrt(z), a)
+    p = ((((4.2163199048e-2 * z + 2.4181311049e-2) * z + 4.5470025998e-2) * z + 7.4953002686e-2) * z
+         + 1.6666752422e-1) * z * s + s
+    return p, big
+
+
+@ti.func
+def asin(x):
+    p, big = _asin_half(x)
+    a = ti.select(big, HALF_PI - 2.0 * p, p)
+    return ti.select(x < 0.0, -a, a)
+
+
+@ti.func
+def acos(x):
+    p, big = _asin_half(x)
+    neg = x < 0.0
+    small = HALF_PI - ti.select(neg, -p, p)
+    return ti.select(big, ti.select(neg, PI - 2.0 * p, 2.0 * p), small)
