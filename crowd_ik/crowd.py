@@ -16,7 +16,7 @@ from crowd_ik import runtime
 from crowd_ik.checks import as_array as _as_array, is_number, positive_int as _positive_int
 from crowd_ik.prepared import prepared
 from crowd_ik.rig import MAX_EXTENT, Rig
-from crowd_ik.solvers import ccd, dls, fabrik, poles as pole_hints
+from crowd_ik.solvers import ccd, dls, fabrik_restart, poles as pole_hints
 from crowd_ik.solvers.bundles import SolveBuffers
 from crowd_ik.solvers.errors import rotation_error
 from crowd_ik.solvers.registry import CCD, DEFAULT as DEFAULT_METHOD, DLS, FABRIK, METHODS
@@ -355,7 +355,9 @@ class Crowd:
         return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)
 
 
-SOLVERS = {FABRIK: fabrik.solve, DLS: dls.solve, CCD: ccd.solve}  # one adapter per method (crowd_ik/solvers/)
+# one adapter per method (crowd_ik/solvers/); FABRIK's solves of more than a window of iterations on a limited rig
+# run in windows with restarts (solvers/fabrik_restart.py), the others are solvers/fabrik.solve
+SOLVERS = {FABRIK: fabrik_restart.solve, DLS: dls.solve, CCD: ccd.solve}
 
 
 __all__ = ["Crowd", "SolveReport", "Status", "METHODS", "grid_positions"]
