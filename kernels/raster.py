@@ -183,9 +183,19 @@ def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius
             if xr[0] <= xr[1] and yr[0] <= yr[1]:
                 mark_tiles(tiles, yr[0], yr[1], xr[0], xr[1])
             d0 = dir_origin(cam)
+            e = b - a
+            # tol bounds the float32 error of a.(d x e) over the screen (|d| <= dmax)
+            dmax = focal + ti.cast(width + height, ti.f32) + ti.abs(cam[13]) + ti.abs(cam[14])
+            tol = 1e-5 * ti.sqrt(a.dot(a) * e.dot(e)) * dmax
+            rr = r * r * (1.0 + 1e-3)
             for py in range(yr[0], yr[1] + 1):
                 for px in range(xr[0], xr[1] + 1):
-                    rd = (d0 + right * ti.cast(px, ti.f32) - up * ti.cast(py, ti.f32)).normalized()
+                    d = d0 + right * ti.cast(px, ti.f32) - up * ti.cast(py, ti.f32)
+                    nrm = d.cross(e)
+                    gap = ti.abs(a.dot(nrm)) - tol
+                    if gap > 0.0 and gap * gap > rr * nrm.dot(nrm):
+                        continue  # the ray's line passes farther than r from the axis line: a miss
+                    rd = d.normalized()
                     t = capsule_hit(rd, a, b, r)
                     if t > 0.0:
                         z = ti.cast(t * rd.dot(fwd), ti.f32)
