@@ -63,9 +63,13 @@ def spawn_bullets(
     age: ndarray(ndim=1),
     alive: ndarray(dtype=ti.i32, ndim=1),
     prev: ndarray(dtype=vec3, ndim=1),
+    count: ti.i32,
+    serial: ti.template(),
 ):
-    """Bullet k (origins, velocities: (K, 3)) goes live in slot slots[k] (K,) with age 0, prev = pos."""
-    for k in range(slots.shape[0]):
+    """Bullet k < count (origins, velocities: (K, 3), K >= count) goes live in slot slots[k] (K,) with age 0,
+    prev = pos. The slots are distinct, so the loop's order does not matter (serial: on the launching thread)."""
+    ti.loop_config(serialize=serial)
+    for k in range(count):
         s = slots[k]
         pos[s] = origins[k]
         prev[s] = origins[k]

@@ -44,8 +44,19 @@ def test_spawn_kernel_matches_twin():
     slots = np.array([3, 7, 0], np.int32)
     origins, velocities = _f32(rng.normal(size=(3, 3))), _f32(rng.normal(size=(3, 3)))
     want = ref.spawn(slots, origins, velocities, pos, vel, age, alive, prev)
-    kp.spawn_bullets(slots, origins, velocities, pos, vel, age, alive, prev)
+    start = [a.copy() for a in (pos, vel, age, alive, prev)]
+    kp.spawn_bullets(slots, origins, velocities, pos, vel, age, alive, prev, 3, False)
     for got, exp in zip((pos, vel, age, alive, prev), want):
+        np.testing.assert_array_equal(got, exp)
+    # serial launch == parallel one; a count below the rows given spawns only the first rows
+    again = [a.copy() for a in start]
+    kp.spawn_bullets(slots, origins, velocities, *again, 3, True)
+    for got, exp in zip(again, want):
+        np.testing.assert_array_equal(got, exp)
+    part = [a.copy() for a in start]
+    want = ref.spawn(slots[:2], origins[:2], velocities[:2], *[a.copy() for a in start])
+    kp.spawn_bullets(slots, origins, velocities, *part, 2, True)
+    for got, exp in zip(part, want):
         np.testing.assert_array_equal(got, exp)
 
 

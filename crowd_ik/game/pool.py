@@ -222,6 +222,7 @@ class BulletPool:
         self._n_chars = -1
         self._threat_out = None
         self._substeps_out = np.zeros(1, np.int32)  # written by prepare_limbs (host memory)
+        self._spawn_in = None  # spawn_bullets' slots, origins and velocities, kept (grown when a spawn needs more)
         self.last_substeps = 0
         # slots [0, _used) have been alive at some time; spawn takes the lowest free slots, so this stays
         # near the largest number of bullets in flight at once, and the per-step kernels loop only over it
@@ -295,8 +296,16 @@ class BulletPool:
         n = min(len(free), origins.shape[0])
         slots = np.ascontiguousarray(free[:n], dtype=np.int32)
         if n:
-            kp.spawn_bullets(slots, np.ascontiguousarray(origins[:n]), np.ascontiguousarray(velocities[:n]),
-                             self.pos, self.vel, self.age, self.alive, self.prev)
+            staged = self._spawn_in
+            if staged is None or staged[0].shape[0] < n:  # kept, so that the launch stays bound (crowd_ik.prepared)
+                k = max(n, 64 if staged is None else 2 * staged[0].shape[0])
+                staged = self._spawn_in = (np.zeros(k, np.int32), np.zeros((k, 3), np.float32),
+                                           np.zeros((k, 3), np.float32))
+            staged[0][:n] = slots
+            staged[1][:n] = origins[:n]
+            staged[2][:n] = velocities[:n]
+            prepared(kp.spawn_bullets)(*staged, self.pos, self.vel, self.age, self.alive, self.prev, n,
+                                       serial_for(n))
             self._used = max(self._used, int(slots.max()) + 1)
         return slots, int(origins.shape[0] - n)
 
