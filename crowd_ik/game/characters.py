@@ -49,10 +49,17 @@ WALK_SLACK = 0.95  # the pelvis never asks a leg for more than this fraction of 
 GREY = (0.80, 0.95)  # the characters' shades of grey
 
 
-def lowpass(current: np.ndarray, desired: np.ndarray, magnitude_now, magnitude_desired, dt: float) -> np.ndarray:
-    """One step of a first-order filter, fast while the magnitude grows and slow while it shrinks."""
+def lowpass_gain(magnitude_now, magnitude_desired, dt: float) -> np.ndarray:
+    """The gain of one step of `lowpass`: fast (TAU_ATTACK) while the magnitude grows, slow while it shrinks."""
     tau = np.where(magnitude_desired > magnitude_now, TAU_ATTACK, TAU_RELEASE)
-    k = 1.0 - np.exp(-dt / tau)
+    return 1.0 - np.exp(-dt / tau)
+
+
+def lowpass(current: np.ndarray, desired: np.ndarray, magnitude_now, magnitude_desired, dt: float,
+            gain: np.ndarray | None = None) -> np.ndarray:
+    """One step of a first-order filter, fast while the magnitude grows and slow while it shrinks (gain: the
+    step's lowpass_gain, when the caller filters several values with the same magnitudes)."""
+    k = lowpass_gain(magnitude_now, magnitude_desired, dt) if gain is None else gain
     if current.ndim > k.ndim:
         k = k[..., None]
     return (current + (desired - current) * k).astype(np.float32)
@@ -136,11 +143,11 @@ class Characters:
             self.ground[:, [0, 2]] = m.pos
             self.yaw = m.yaw.astype(np.float32)
         self.gait.step(self.ground, self.yaw, self.velocity, dt, self.alive)
-        bob, hands, head = self.gait.pose(self.yaw, m.walking_speed)
+        feet = self.gait.targets()
+        bob, hands, head = self.gait.pose(self.yaw, m.walking_speed, feet)
         targets = b.rest_targets(self.ground, self.yaw)
         targets[:, self._hand_eff] += hands
         targets[:, 0] += head
-        feet = self.gait.targets()
         targets[:, b.planted] = feet
         self.rest_targets = targets
         np.copyto(self.planted, feet)
@@ -211,9 +218,10 @@ class Characters:
             guard_goal[i] = np.where(head_high, 1.0, 0.0)
         mag_now = np.linalg.norm(self.lean, axis=1) + self.duck
         mag_goal = np.linalg.norm(lean_goal, axis=1) + duck_goal
-        self.lean = lowpass(self.lean, lean_goal, mag_now, mag_goal, dt)
-        self.duck = lowpass(self.duck, duck_goal, mag_now, mag_goal, dt)
-        self.guard = lowpass(self.guard, guard_goal, mag_now, mag_goal, dt)
+        gain = lowpass_gain(mag_now, mag_goal, dt)  # one gain for the three filters (the same magnitudes)
+        self.lean = lowpass(self.lean, lean_goal, mag_now, mag_goal, dt, gain)
+        self.duck = lowpass(self.duck, duck_goal, mag_now, mag_goal, dt, gain)
+        self.guard = lowpass(self.guard, guard_goal, mag_now, mag_goal, dt, gain)
 
     def solve(self) -> float:
         """The dodge -> roots and IK targets (one kernel), one batched solve, the limbs; returns the

@@ -138,15 +138,17 @@ class Gait:
             feet[i, self.swing[i]] = p
         return feet
 
-    def pose(self, yaw: np.ndarray, speed: np.ndarray):
+    def pose(self, yaw: np.ndarray, speed: np.ndarray, feet: np.ndarray | None = None):
         """(bob (N,) m of pelvis rise, hand offsets (N, 2, 3) m for hand_l and hand_r, head offset (N, 3) m)
         of bodies heading yaw (N,) at speed (N,) m/s: the pelvis rises mid-swing, the hands swing
-        against the feet, the head leans into the walk."""
+        against the feet, the head leans into the walk. feet: targets() of the state now, when the caller
+        has it (else computed)."""
         s = self.scale
         gain = np.minimum(1.0, np.asarray(speed, np.float32) / (BOB_SPEED * s))
         mid = np.where(self.swing >= 0, np.sin(math.pi * self.progress), 0.0)
         bob = (BOB * s * gain * (mid - 0.5)).astype(np.float32)
-        feet = self.targets()
+        if feet is None:
+            feet = self.targets()
         fwd = np.stack([np.sin(yaw), np.zeros_like(yaw), np.cos(yaw)], axis=1).astype(np.float32)
         split = np.einsum("ij,ij->i", feet[:, 1] - feet[:, 0], fwd)  # right foot ahead of the left, m
         arm = np.clip(ARM_SWING * split, -ARM_MAX * s, ARM_MAX * s) * gain
