@@ -28,8 +28,12 @@ Why this shape (see also crowd_ik/render.py):
   or the sky gradient. The ground also hides the parts of capsules below y = 0. Everything about
   the ground and sky but the shadows depends on the camera alone, so `shade_background` computes
   it once per camera and a ground pixel costs one multiply-add per channel. A new camera's frame shades
-  every pixel anyway, so there one pass (`shade_frame_background`) computes, keeps and uses each
-  pixel's background.
+  every pixel anyway, so there one pass (`shade_frame_fresh`) computes each pixel's background where it
+  is used, its grid and fog only where no primitive in front of the ground hides them, and stores none
+  of it (a follow camera never sees it again); the renderer stores it on the second frame that keeps
+  the camera (draw_frame SHADE_FILL). `shade_frame_background` (compute, store and use) stays for tests.
+- `raster_capsules` loops, in each row of a primitive's box, only over the span of pixels whose rays
+  may meet the capsule (kernels/raster_cover.py: conservative, so the keys stay the same bit for bit).
 - Work split for the cores: Taichi's CPU backend hands out a parallel loop in tasks of at least 512
   iterations, so the image passes loop over (row, SPAN-pixel piece), (row, tile column) or tiles, and
   `splat_shadows` over several items per primitive (each every parts-th texel row) when there are few.
@@ -49,7 +53,12 @@ Arrays: P primitives (only the first n are drawn), H x W pixels.
   frame: (H, W, 3) uint8 BGR, row 0 at the top; depth: (H, W) float32 view depth, metres.
 Modules: raster_geometry (the look's constants, shared with the NumPy twin crowd_ik/reference/raster.py,
 and the ray and shadow geometry), this one (buffers, primitives, the z-buffer and shadow splats),
-raster_shade (background and per-pixel shading; re-exported here).
+raster_cover (the row spans), raster_shade (background and per-pixel shading; re-exported here).
+
+Bit for bit: fast math puts `reassoc` on every float operation (no contraction: no FMA is emitted), so
+LLVM regroups sums by where their terms come from. Hoisting the camera's reads out of a pixel loop, or
+giving an intermediate value (the ray origin d0) one more use, changed the last bit of some tilted
+cameras' pixels; the code keeps each pixel's expressions and their inputs as they were.
 """
 
 
@@ -60,11 +69,18 @@ from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND:
     dir_origin, effective_radius, empty_key, mark_tiles, pixel_range, primitive_parts, row3, shadow_soft, shadow_value,
     sphere_bounds,
 )
+from crowd_ik.kernels.raster_cover import capsule_row
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
-    shade_all, shade_background, shade_frame, shade_frame_background, shade_tiles,
+    background_all, shade_all, shade_background, shade_frame, shade_frame_background, shade_frame_fresh, shade_fresh,
+    shade_tiles,
 )
 
 ndarray = ti.types.ndarray
+
+# draw_frame's shading step (see there)
+SHADE_TILES = 0
+SHADE_FRESH = 1
+SHADE_FILL = 2
 
 
 @ti.kernel
@@ -183,19 +199,10 @@ def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius
             if xr[0] <= xr[1] and yr[0] <= yr[1]:
                 mark_tiles(tiles, yr[0], yr[1], xr[0], xr[1])
             d0 = dir_origin(cam)
-            e = b - a
-            # tol bounds the float32 error of a.(d x e) over the screen (|d| <= dmax)
-            dmax = focal + ti.cast(width + height, ti.f32) + ti.abs(cam[13]) + ti.abs(cam[14])
-            tol = 1e-5 * ti.sqrt(a.dot(a) * e.dot(e)) * dmax
-            rr = r * r * (1.0 + 1e-3)
             for py in range(yr[0], yr[1] + 1):
-                for px in range(xr[0], xr[1] + 1):
-                    d = d0 + right * ti.cast(px, ti.f32) - up * ti.cast(py, ti.f32)
-                    nrm = d.cross(e)
-                    gap = ti.abs(a.dot(nrm)) - tol
-                    if gap > 0.0 and gap * gap > rr * nrm.dot(nrm):
-                        continue  # the ray's line passes farther than r from the axis line: a miss
-                    rd = d.normalized()
+                x0, x1 = capsule_row(a, b, r, cam, py, xr[0], xr[1])
+                for px in range(x0, x1 + 1):
+                    rd = (d0 + right * ti.cast(px, ti.f32) - up * ti.cast(py, ti.f32)).normalized()
                     t = capsule_hit(rd, a, b, r)
                     if t > 0.0:
                         z = ti.cast(t * rd.dot(fwd), ti.f32)
@@ -319,18 +326,23 @@ def draw_frame(
     background: ndarray(dtype=ti.f32, ndim=3),
     frame: ndarray(dtype=ti.u8, ndim=3),
     depth: ndarray(dtype=ti.f32, ndim=2),
-    new_camera: ti.template(),
+    shading: ti.template(),
 ):
     """A whole frame in one launch: load_primitives, clear_buffers, raster_capsules, splat_shadows,
-    then shade_frame_background (new_camera True: every tile's tiles flag must be set) or
-    shade_frame. Each step is one top-level loop, and Taichi runs a kernel's top-level loops one
-    after the other, so this is those five kernels launched in turn, bit for bit, for the Python
-    cost of one launch (~0.5-1 ms each on the CPU backend, mostly argument handling)."""
+    then by `shading` (SHADE_FRESH: every tile's tiles flag must be set)
+      SHADE_TILES  shade_frame (the camera's background is in `background`),
+      SHADE_FRESH  shade_frame_fresh (a new camera: every pixel, background not stored),
+      SHADE_FILL   shade_background then shade_frame (the camera is kept, its background not yet stored).
+    Each step is one top-level loop, and Taichi runs a kernel's top-level loops one after the other, so
+    this is those kernels launched in turn, bit for bit, for the Python cost of one launch (~0.5-1 ms each
+    on the CPU backend, mostly argument handling)."""
     load_rows(src_a, src_b, src_r, src_c, n, pa, pb, radius, color)
     clear_tiles(keys, shadow, tiles)
     raster_loop(cam, pa, pb, radius, n, keys, tiles)
     splat_loop(cam, pa, pb, radius, n, shadow, tiles)
-    if ti.static(new_camera):
-        shade_all(cam, pa, pb, color, keys, shadow, background, frame, depth)
+    if ti.static(shading == SHADE_FRESH):
+        shade_fresh(cam, pa, pb, color, keys, shadow, frame, depth)
     else:
+        if ti.static(shading == SHADE_FILL):
+            background_all(cam, background)
         shade_tiles(cam, pa, pb, color, keys, shadow, background, tiles, frame, depth)

@@ -76,15 +76,25 @@ def shade_capsule(base, n, rd, y):
 
 
 @ti.func
-def background_pixel(cam: ti.template(), px, py):
-    """shade_background's three values for pixel (px, py): (ground view depth or inf, brightness
-    factor or sky gradient, fog factor or 0)."""
+def ground_ray(cam: ti.template(), px, py):
+    """The first half of background_pixel: pixel (px, py)'s ray direction d, its unit rd, the distance tg
+    to the ground along rd (<= 0: the ray sees the sky) and the ground's view depth b0 (inf for the sky)."""
     eye = cam_vec(cam, 0)
     fwd = cam_vec(cam, 9)
     d = pixel_dir(cam, px, py)
     rd = d.normalized()
     tg = ground_hit(eye, rd)
     b0 = ti.math.inf
+    if tg > 0.0:
+        b0 = tg * rd.dot(fwd)
+    return d, rd, tg, b0
+
+
+@ti.func
+def ground_look(cam: ti.template(), d, rd, tg):
+    """The second half of background_pixel, from ground_ray's d, rd, tg: (brightness factor or sky gradient,
+    fog factor or 0)."""
+    eye = cam_vec(cam, 0)
     b1 = 0.0
     b2 = 0.0
     if tg > 0.0:
@@ -101,11 +111,19 @@ def background_pixel(cam: ti.template(), px, py):
             fwz = ti.max(ti.max(ti.abs(gx[2] - g[2]), ti.abs(gy[2] - g[2])), 1e-4)
         grid = ti.max(line_cover(g[0], fwx), line_cover(g[2], fwz))
         f = 1.0 - ti.exp(-(tg / FOG_DISTANCE) * (tg / FOG_DISTANCE))
-        b0 = tg * rd.dot(fwd)
         b1 = (1.0 - GRID_DARK * grid) * (1.0 - f)
         b2 = f
     else:
         b1 = ti.sqrt(ti.math.clamp(rd[1], 0.0, 1.0))
+    return b1, b2
+
+
+@ti.func
+def background_pixel(cam: ti.template(), px, py):
+    """shade_background's three values for pixel (px, py): (ground view depth or inf, brightness
+    factor or sky gradient, fog factor or 0)."""
+    d, rd, tg, b0 = ground_ray(cam, px, py)
+    b1, b2 = ground_look(cam, d, rd, tg)
     return b0, b1, b2
 
 
@@ -130,12 +148,7 @@ def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dty
     camera; shade_frame then finishes a ground pixel as GROUND (1 - shadow) [1] + SKY_HORIZON [2],
     which is fog(GROUND (1 - GRID_DARK grid) (1 - shadow), distance) rearranged.
     """
-    width = background.shape[1]
-    spans = (width + SPAN - 1) // SPAN
-    for item in range(background.shape[0] * spans):
-        py = item // spans
-        x0 = (item % spans) * SPAN
-        background_span(cam, background, py, x0, ti.min(x0 + SPAN, width))
+    background_all(cam, background)
 
 
 @ti.func
@@ -248,3 +261,58 @@ def shade_all(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: t
         for px in range(x0, x1):
             shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py,
                         background[py, px, 0], background[py, px, 1], background[py, px, 2])
+
+
+@ti.kernel
+def shade_frame_fresh(
+    cam: ndarray(dtype=ti.f32, ndim=1),
+    pa: ndarray(dtype=ti.f32, ndim=2),
+    pb: ndarray(dtype=ti.f32, ndim=2),
+    color: ndarray(dtype=ti.f32, ndim=2),
+    keys: ndarray(dtype=ti.i64, ndim=2),
+    shadow: ndarray(dtype=ti.i32, ndim=2),
+    frame: ndarray(dtype=ti.u8, ndim=3),
+    depth: ndarray(dtype=ti.f32, ndim=2),
+):
+    """shade_frame_background's frame and depth without its background buffer: each pixel's background is
+    computed and used at once, and its grid and fog (ground_look) only where no primitive in front of the
+    ground covers the pixel. For a camera seen once (every frame of a follow camera) the background is never
+    read again; a renderer that keeps the camera computes it then (shade_background). The same functions on
+    the same values: the frame and depth are shade_frame_background's bit for bit."""
+    shade_fresh(cam, pa, pb, color, keys, shadow, frame, depth)
+
+
+@ti.func
+def shade_fresh(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
+                shadow: ti.template(), frame: ti.template(), depth: ti.template()):
+    """shade_frame_fresh's loop (the top-level, parallel loop of the kernel it is inlined in), over SPAN-pixel
+    pieces of rows."""
+    width = keys.shape[1]
+    spans = (width + SPAN - 1) // SPAN
+    for item in range(keys.shape[0] * spans):
+        py = item // spans
+        x0 = (item % spans) * SPAN
+        x1 = ti.min(x0 + SPAN, width)
+        i0, i1, fv = shadow_row(shadow, py)
+        for px in range(x0, x1):
+            d, rd, tg, ground_z = ground_ray(cam, px, py)
+            key = keys[py, px]
+            pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
+            z = ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
+            b1 = 0.0
+            b2 = 0.0
+            if not (pid != EMPTY_ID and z < ground_z):  # shade_pixel draws the ground or sky: it needs b1, b2
+                b1, b2 = ground_look(cam, d, rd, tg)
+            shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py, ground_z, b1, b2)
+
+
+@ti.func
+def background_all(cam: ti.template(), background: ti.template()):
+    """shade_background's loop (the top-level, parallel loop of the kernel it is inlined in), over SPAN-pixel
+    pieces of rows."""
+    width = background.shape[1]
+    spans = (width + SPAN - 1) // SPAN
+    for item in range(background.shape[0] * spans):
+        py = item // spans
+        x0 = (item % spans) * SPAN
+        background_span(cam, background, py, x0, ti.min(x0 + SPAN, width))

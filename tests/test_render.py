@@ -459,32 +459,35 @@ def _draw_buffers(cam, p):
 
 def test_draw_frame_is_the_five_kernels_in_turn():
     """The one-launch frame (kernels/raster.draw_frame) against load, clear, raster, shadows and shade
-    launched one by one on a copy of the same persistent buffers: a new camera's frame (all tiles),
-    then frames of moved primitives that shade only the dirty tiles."""
+    launched one by one on a copy of the same persistent buffers, in the renderer's order: a new camera's
+    frame (all pixels, SHADE_FRESH), then frames of moved primitives that shade only the dirty tiles, the
+    first of them storing the camera's background (SHADE_FILL), the next using it (SHADE_TILES)."""
     cam = _cam(w=96, h=64)
     a, b, r = (np.ascontiguousarray(x, np.float32) for x in _scene(seed=3))
     colors = np.random.default_rng(3).uniform(0.0, 1.0, (len(r), 3)).astype(np.float32)
     p = len(r) + 2
     fused, split = _draw_buffers(cam, p), _draw_buffers(cam, p)
     packed = cam.packed()
-    for frame_no, shift in enumerate((0.0, 0.4, 0.4)):
-        new_camera = frame_no == 0
+    for frame_no, (shift, shading) in enumerate(((0.0, kr.SHADE_FRESH), (0.4, kr.SHADE_FILL),
+                                                 (0.4, kr.SHADE_TILES))):
         src = (a[:-1] + shift, b[:-1] + shift, r[:-1], colors[:-1])  # n < P: rows past n are not drawn
         n = len(r) - 1
         hosts = [np.zeros_like(fused[k]) for k in ("pa", "pb", "radius", "color")]
         for host, s in zip(hosts, src):
             host[:n] = s
-        kr.draw_frame(packed, *hosts, n, *fused.values(), new_camera)
+        kr.draw_frame(packed, *hosts, n, *fused.values(), shading)
         s = split
         kr.load_primitives(*hosts, n, s["pa"], s["pb"], s["radius"], s["color"])
         kr.clear_buffers(s["keys"], s["shadow"], s["tiles"])
         kr.raster_capsules(packed, s["pa"], s["pb"], s["radius"], n, s["keys"], s["tiles"])
         kr.splat_shadows(packed, s["pa"], s["pb"], s["radius"], n, s["shadow"], s["tiles"])
-        common = (packed, s["pa"], s["pb"], s["color"], s["keys"], s["shadow"], s["background"])
-        if new_camera:
-            kr.shade_frame_background(*common, s["frame"], s["depth"])
+        common = (packed, s["pa"], s["pb"], s["color"], s["keys"], s["shadow"])
+        if shading == kr.SHADE_FRESH:
+            kr.shade_frame_fresh(*common, s["frame"], s["depth"])
         else:
-            kr.shade_frame(*common, s["tiles"], s["frame"], s["depth"])
+            if shading == kr.SHADE_FILL:
+                kr.shade_background(packed, s["background"])
+            kr.shade_frame(*common, s["background"], s["tiles"], s["frame"], s["depth"])
         for key, value in fused.items():
             np.testing.assert_array_equal(value, split[key], err_msg=f"frame {frame_no}: {key}")
         assert len(np.unique(decode_keys(fused["keys"])[0])) > 4  # primitives drawn

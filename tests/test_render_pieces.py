@@ -51,7 +51,8 @@ def test_splat_in_parts_equals_one_item_per_primitive():
 
 def test_pieces_and_edge_tiles_shade_every_pixel_once():
     """A frame whose width is no multiple of SPAN or TILE and whose height is no multiple of TILE: the fused
-    background pass and the tile pass write every pixel (sentinels gone) and agree bit for bit."""
+    background pass, the tile pass and the fresh pass (no background stored) write every pixel (sentinels
+    gone) and agree bit for bit."""
     w, h = 2 * geo.SPAN + 8 + 2, 3 * geo.TILE + 6
     assert w % geo.SPAN and w % geo.TILE and h % geo.TILE
     cam = Camera((0.5, 3.0, 6.0), (0.0, 0.5, 0.0), 60.0, w, h)
@@ -66,18 +67,24 @@ def test_pieces_and_edge_tiles_shade_every_pixel_once():
     kr.raster_capsules(packed, a, b, r, len(r), keys, tiles)
     kr.splat_shadows(packed, a, b, r, len(r), shadow, tiles)
     out = {}
-    for fused in (True, False):
+    for way in ("fused", "split", "fresh"):
         background = np.full((h, w, 3), -7.0, np.float32)
         frame = np.full((h, w, 3), 3, np.uint8)
         depth = np.full((h, w), -1.0, np.float32)
-        if fused:
+        if way == "fused":
             kr.shade_frame_background(packed, a, b, color, keys, shadow, background, frame, depth)
-        else:
+        elif way == "split":
             kr.shade_background(packed, background)
             kr.shade_frame(packed, a, b, color, keys, shadow, background, _tiles(h, w, 2), frame, depth)
-        assert not np.any(background == -7.0) and not np.any(depth == -1.0)
-        out[fused] = (background, frame, depth)
-    for x, y in zip(out[True], out[False]):
+        else:  # frame and depth only: the background buffer is not written
+            kr.shade_frame_fresh(packed, a, b, color, keys, shadow, frame, depth)
+            assert np.all(background == -7.0)
+        assert not np.any(depth == -1.0) and (way == "fresh" or not np.any(background == -7.0))
+        out[way] = (background, frame, depth)
+    for x, y in zip(out["fused"], out["split"]):
         np.testing.assert_array_equal(x, y)
+    for x, y in zip(out["fused"][1:], out["fresh"][1:]):
+        np.testing.assert_array_equal(x, y)
+    out[True] = out["fused"]
     assert np.isinf(out[True][2]).any() and np.isfinite(out[True][2]).mean() > 0.3  # sky and ground both seen
     assert len(np.unique(out[True][1].reshape(-1, 3), axis=0)) > 50

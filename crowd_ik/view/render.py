@@ -9,8 +9,8 @@ draw_frame, five passes in turn; kernels/raster.py explains the method): copy th
 rasterise every capsule and sphere into an integer z-buffer (exact ray-capsule hits, `atomic_min`
 on (depth bits, id) keys, so frames are bit-identical across runs and thread counts), splat soft
 ground shadows into a half-resolution buffer, shade every pixel (sky gradient, ground grid,
-shadows, Lambert + ambient + rim capsules). The sky and the unshadowed ground are kept per camera
-(a new camera's shading pass, shade_frame_background, computes them too). Bullet trails
+shadows, Lambert + ambient + rim capsules). A new camera's sky and ground are computed where used; the
+second frame that keeps the camera stores them, later ones repaint only dirty tiles. Bullet trails
 (anti-aliased lines fading along their length; drawn over the scene, without a depth test) and HUD
 text on a dark box are drawn afterwards with OpenCV.
 
@@ -231,6 +231,7 @@ class Renderer:
         self._shadow = ti.ndarray(ti.i32, shape=(h // 2, w // 2))
         self._background = ti.ndarray(ti.f32, shape=(h, w, 3))  # ground and sky for _background_cam
         self._background_cam = None
+        self._background_stored = False  # whether _background holds _background_cam's values yet
         # Dirty tiles (kernels/raster.py TILE): bit 0 drawn this frame, bit 1 drawn last frame; the
         # rest of the frame buffer keeps the background. All ones: clear and shade everything.
         self._tiles = ti.ndarray(ti.i32, shape=((h + kr.TILE - 1) // kr.TILE, (w + kr.TILE - 1) // kr.TILE))
@@ -322,14 +323,18 @@ class Renderer:
 
         packed = self._camera.packed()
         self._cam.from_numpy(packed)
-        new_camera = self._background_cam is None or not np.array_equal(packed, self._background_cam)
-        if new_camera:  # every pixel's background changes; shade_frame_background computes it below
-            self._background_cam = packed
+        if self._background_cam is None or not np.array_equal(packed, self._background_cam):
+            # every pixel changes: shade all, each background value computed where used and not stored
+            self._background_cam, self._background_stored, shading = packed, False, kr.SHADE_FRESH
             self._tiles.fill(1)
-        # load, clear, rasterise, splat shadows and shade (all tiles for a new camera, else the dirty ones)
+        elif not self._background_stored:  # the camera stays: its background is worth storing now
+            self._background_stored, shading = True, kr.SHADE_FILL
+        else:
+            shading = kr.SHADE_TILES
+        # load, clear, rasterise, splat shadows and shade (all pixels for a new camera, else the dirty tiles)
         kr.draw_frame(self._cam, self._host_a, self._host_b, self._host_r, self._host_c, n, self._pa, self._pb,
                       self._radius, self._color, self._keys, self._shadow, self._tiles, self._background,
-                      self._frame, self._depth, new_camera)
+                      self._frame, self._depth, shading)
         if self.frame_source is None:
             return self._frame.copy()
         out = self.frame_source()  # the frame buffer persists (dirty tiles): the frame is copied out
