@@ -1,12 +1,34 @@
 """Row moves for FABRIK's windowed solve (crowd_ik/solvers/fabrik_restart.py): the joint angles of listed characters
-read and written, and their local rotations saved and put back. No solver arithmetic: the windows themselves are
-launches of kernels/fabrik.py."""
+read, new start angles written (the pose before saved first where asked), and saved poses put back, each followed by
+the characters' forward kinematics as kernels/fk.py's fk_kernel does it. No solver arithmetic: the windows themselves
+are launches of kernels/fabrik.py.
+
+The characters are which[:count] of buffers sized for the whole crowd (so that a prepared launch binds the same
+arrays every time, crowd_ik/prepared.py); `serial` (kernels/serial_loops.py) runs a few characters' moves on the
+launching thread.
+"""
 
 import taichi as ti
 
-from crowd_ik.kernels.quat import joint_angles, joint_quat, vec3, vec4
+from crowd_ik.kernels.fk import joint_fk_local
+from crowd_ik.kernels.local_arrays import get3, get4, put
+from crowd_ik.kernels.quat import joint_angles, joint_quat, qmul, yaw_quat, vec3, vec4
 
 ndarray = ti.types.ndarray
+
+
+@ti.func
+def character_fk(i, parent: ti.template(), offset: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
+                 local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), n_joints: ti.template()):
+    """Character i's world pose from its root and local rotations: the body of kernels/fk.py's fk_kernel."""
+    pos = ti.Matrix.zero(ti.f32, n_joints, 3)
+    rot = ti.Matrix.zero(ti.f32, n_joints, 4)
+    q_root = yaw_quat(root_yaw[i])
+    for j in range(n_joints):
+        put(rot, j, qmul(joint_fk_local(j, parent[j], q_root, offset, rot, pos), local_rot[i, j]))
+    for j in range(n_joints):
+        world_pos[i, j] = root_pos[i] + get3(pos, j)
+        world_rot[i, j] = get4(rot, j)
 
 
 @ti.kernel
@@ -14,54 +36,83 @@ def read_angles(
     kind: ndarray(dtype=ti.i32, ndim=1),
     axes: ndarray(dtype=vec3, ndim=2),
     dof_start: ndarray(dtype=ti.i32, ndim=1),
-    local_rot: ndarray(dtype=vec4, ndim=2),
+    rotations: ndarray(dtype=vec4, ndim=2),
     which: ndarray(dtype=ti.i32, ndim=1),
+    count: ti.i32,
     angles: ndarray(ndim=2),
+    serial: ti.template(),
 ):
-    """angles (K, D) radians of the characters which (K,), from local_rot (N, J) (as kernels/fk.py's
+    """angles[k] (D,) radians of character which[k]'s rotations (N, J), k < count (as kernels/fk.py's
     rotations_to_angles: ball joints intrinsic XYZ Euler)."""
-    for k, j in ti.ndrange(which.shape[0], local_rot.shape[1]):
+    ti.loop_config(serialize=serial)
+    for k, j in ti.ndrange(count, rotations.shape[1]):
         kd = kind[j]
-        a = joint_angles(kd, axes[j, 0], axes[j, 1], local_rot[which[k], j])
+        a = joint_angles(kd, axes[j, 0], axes[j, 1], rotations[which[k], j])
         for d in range(kd):
             angles[k, dof_start[j] + d] = a[d]
 
 
 @ti.kernel
-def write_angles(
+def write_starts(
+    parent: ndarray(dtype=ti.i32, ndim=1),
+    offset: ndarray(dtype=vec3, ndim=1),
     kind: ndarray(dtype=ti.i32, ndim=1),
     axes: ndarray(dtype=vec3, ndim=2),
     dof_start: ndarray(dtype=ti.i32, ndim=1),
+    root_pos: ndarray(dtype=vec3, ndim=1),
+    root_yaw: ndarray(ndim=1),
     angles: ndarray(ndim=2),
     which: ndarray(dtype=ti.i32, ndim=1),
+    save: ndarray(dtype=ti.i32, ndim=1),
+    count: ti.i32,
+    saved: ndarray(dtype=vec4, ndim=2),
     local_rot: ndarray(dtype=vec4, ndim=2),
+    world_pos: ndarray(dtype=vec3, ndim=2),
+    world_rot: ndarray(dtype=vec4, ndim=2),
+    n_joints: ti.template(),
+    serial: ti.template(),
 ):
-    """local_rot of the characters which (K,) from angles (K, D); fixed joints keep their rotation."""
-    for k, j in ti.ndrange(which.shape[0], local_rot.shape[1]):
-        kd = kind[j]
-        if kd > 0:
-            s = dof_start[j]
-            a0 = angles[k, s]
-            a1 = 0.0
-            a2 = 0.0
-            if kd >= 2:
-                a1 = angles[k, s + 1]
-            if kd >= 3:
-                a2 = angles[k, s + 2]
-            local_rot[which[k], j] = joint_quat(kd, axes[j, 0], axes[j, 1], a0, a1, a2)
+    """For k < count, character i = which[k]: its local rotations first copied to saved[i] where save[k] is 1, then
+    set from angles[k] (fixed joints keep theirs), then its FK."""
+    ti.loop_config(serialize=serial)
+    for k in range(count):
+        i = which[k]
+        for j in range(n_joints):
+            if save[k] == 1:
+                saved[i, j] = local_rot[i, j]
+            kd = kind[j]
+            if kd > 0:
+                s = dof_start[j]
+                a0 = angles[k, s]
+                a1 = 0.0
+                a2 = 0.0
+                if kd >= 2:
+                    a1 = angles[k, s + 1]
+                if kd >= 3:
+                    a2 = angles[k, s + 2]
+                local_rot[i, j] = joint_quat(kd, axes[j, 0], axes[j, 1], a0, a1, a2)
+        character_fk(i, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, n_joints)
 
 
 @ti.kernel
-def gather_rows(local_rot: ndarray(dtype=vec4, ndim=2), which: ndarray(dtype=ti.i32, ndim=1),
-                out: ndarray(dtype=vec4, ndim=2)):
-    """out[which[k]] = local_rot[which[k]] for each listed character (out is (N, J), like local_rot)."""
-    for k, j in ti.ndrange(which.shape[0], local_rot.shape[1]):
-        out[which[k], j] = local_rot[which[k], j]
-
-
-@ti.kernel
-def scatter_rows(src: ndarray(dtype=vec4, ndim=2), which: ndarray(dtype=ti.i32, ndim=1),
-                 local_rot: ndarray(dtype=vec4, ndim=2)):
-    """local_rot[which[k]] = src[which[k]] for each listed character."""
-    for k, j in ti.ndrange(which.shape[0], local_rot.shape[1]):
-        local_rot[which[k], j] = src[which[k], j]
+def put_back(
+    parent: ndarray(dtype=ti.i32, ndim=1),
+    offset: ndarray(dtype=vec3, ndim=1),
+    root_pos: ndarray(dtype=vec3, ndim=1),
+    root_yaw: ndarray(ndim=1),
+    saved: ndarray(dtype=vec4, ndim=2),
+    which: ndarray(dtype=ti.i32, ndim=1),
+    count: ti.i32,
+    local_rot: ndarray(dtype=vec4, ndim=2),
+    world_pos: ndarray(dtype=vec3, ndim=2),
+    world_rot: ndarray(dtype=vec4, ndim=2),
+    n_joints: ti.template(),
+    serial: ti.template(),
+):
+    """For k < count, character i = which[k]: local_rot[i] = saved[i], then its FK."""
+    ti.loop_config(serialize=serial)
+    for k in range(count):
+        i = which[k]
+        for j in range(n_joints):
+            local_rot[i, j] = saved[i, j]
+        character_fk(i, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, n_joints)

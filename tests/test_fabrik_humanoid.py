@@ -1,6 +1,6 @@
 """FABRIK on the joint-limited humanoid (issue 15): the quality figures of tests/fabrik_quality.py as tests. The
-head dragged forward keeps the neck from taking the bend alone; the cross-body reach is within 5 mm; the in-limit-pose
-success rate is below the issue's goal (97 %): a strict xfail records where it stands."""
+head dragged forward keeps the neck from taking the bend alone; the cross-body reach is within 5 mm; at least 97 % of
+the in-limit poses converge (seeds 0-2, 1,000 characters), the issue's goal."""
 
 import numpy as np
 import pytest
@@ -25,17 +25,14 @@ def test_the_head_dragged_forward_bends_the_spine_not_the_neck_alone():
     assert rep.converged[0] and b[2] <= 0.5 * sum(b)  # measured 0.296 of 0.852 rad
 
 
-def test_in_limit_poses_converge_for_most_characters():
-    rep = in_limit_poses(1000, seed=0)
-    # measured 91.9 % (seeds 1, 2: 91.4, 91.8 %); without the chest passing its clamped excess to the spine
-    # (kernels/fabrik_pass_up.py) 85.2 % (83.4, 81.3 %); DLS 100 %
-    assert np.mean(rep.converged) >= 0.9
-
-
-@pytest.mark.xfail(strict=True, reason="issue 15 goal not met: 92 % of in-limit poses converge, not 97 % (the "
-                                       "unsolved poses mostly stall with the head 1-2 cm off)")
-def test_in_limit_poses_converge_for_97_percent():
-    assert np.mean(in_limit_poses(1000, seed=0).converged) >= 0.97
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_in_limit_poses_converge_for_97_percent(seed):
+    rep = in_limit_poses(1000, seed=seed)
+    # measured 97.6, 98.5, 97.9 % with the windowed solve's restarts and jumps (solvers/fabrik_restart.py); one
+    # launch of 100 iterations: 91.9, 91.4, 91.8 %; without the chest passing its clamped excess to the spine
+    # (kernels/fabrik_pass_up.py) as well 85.2, 83.4, 81.3 %; DLS 100 %
+    assert np.mean(rep.converged) >= 0.97
+    assert rep.iterations.max() <= 100
 
 
 def test_cross_body_reach_within_5_mm():

@@ -6,13 +6,15 @@ than WINDOW iterations therefore runs as windows of at most WINDOW iterations (l
 the same kernels, the characters that are done masked out by a zero weight), and between windows each character
 that is not yet within tolerance either
 - goes on from where it stands;
-- restarts, when its last window stalled and RESTART_LEFT iterations are left: from the best pose it has had, the
+- restarts, when its last window stalled, RESTART_LEFT iterations are left, it is within RESTART_NEAR tolerances of
+  its targets and has restarted fewer than MAX_RESTARTS times: from the best pose it has had, the
   joint angles that sit at a limit pulled PULL rad inside it, and from the second restart on a kick of KICK rad
   (a fixed sequence of normal draws, the k-th restart of every character takes the k-th: no character depends on
   another, so a batch solves as its characters one at a time);
 - or jumps, when its last three window ends moved its angles by steps shrinking by a ratio r in JUMP_RATIO: to the
   limit of that geometric sequence (angles + d r / (1 - r), at most JUMP_FACTOR d), clipped to the limits.
-Every character keeps the pose with the lowest error it has had. The report counts every update applied, restarts
+Characters with a target beyond their reach (Crowd's UNREACHABLE rule) only go on. Every character keeps the pose
+with the lowest error it has had. The report counts every update applied, restarts
 and jumps included, and no character gets more than max_iterations of them (the windows share one clock: a window
 gets min(WINDOW, what is left)); STALLED means the last attempt stopped improving, MAX_ITERATIONS that it was still
 improving when the clock ran out. Solves of at most WINDOW iterations (the game's warm 4-iteration frames), rigs
@@ -21,13 +23,18 @@ without limits, and solves with orientation or rotation targets are solvers/fabr
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
 import numpy as np
 
+from crowd_ik.kernels.serial_loops import JOINT, serial_for
+from crowd_ik.prepared import prepared
 from crowd_ik.solvers import fabrik
 
-WINDOW = 10  # iterations per window; a solve of at most this many is one launch, as without windows
+WINDOW = 8  # iterations per window; a solve of at most this many is one launch, as without windows
+MAX_RESTARTS = 3  # restarts per character at most
+RESTART_NEAR = 20.0  # a stalled character restarts only within this many tolerances of its targets
 RESTART_LEFT = 10  # a stalled character restarts only with at least this many iterations left
 PULL = 0.3  # rad: how far a restart moves an angle that sits at a limit inside it
 KICK = 0.15  # rad: the standard deviation of the restarts' kicks (the first restart has none)
@@ -53,11 +60,24 @@ def solve(crowd, req) -> None:
     _Windows(crowd, req).run()
 
 
+@functools.lru_cache(maxsize=64)
 def _kick(k: int, n_dof: int) -> np.ndarray:
-    """The k-th restart's kick (DOF,) float32 (zeros for the first)."""
+    """The k-th restart's kick (DOF,) float32 (zeros for the first); shared, not to be written."""
     if k == 0:
         return np.zeros(n_dof, np.float32)
     return np.random.default_rng(KICK_SEED + k).normal(0.0, KICK, n_dof).astype(np.float32)
+
+
+class _Rows:
+    """A crowd's buffers for the row moves (kernels/fabrik_restart.py), kept across solves so that their launches
+    are prepared: the listed characters, their save flags, their angles, and the saved rotations."""
+
+    def __init__(self, crowd):
+        N, D = crowd.n, crowd.rig.n_dof
+        self.which = np.zeros(N, np.int32)
+        self.save = np.zeros(N, np.int32)
+        self.angles = np.zeros((N, D), np.float32)
+        self.saved = crowd.scratch("fabrik_saved_rot", crowd.ti.math.vec4, (N, crowd.rig.n_joints))
 
 
 class _Windows:
@@ -67,48 +87,58 @@ class _Windows:
     def __init__(self, crowd, req):
         self.crowd, self.req = crowd, req
         rig, N = crowd.rig, crowd.n
+        self.n_joints, self.n_dof = rig.n_joints, rig.n_dof
         lo, hi = rig.angle_limits()
         self.lo, self.hi = lo.astype(np.float32), hi.astype(np.float32)
         self.used = np.zeros(N, np.int32)
+        self.last = np.zeros(N, np.int32)  # updates of each character's last window
         self.err = np.zeros(N, np.float32)
         self.stalled = np.zeros(N, bool)
-        self.best_err = np.full(N, np.inf, np.float32)  # of the pose saved in best_rot (inf: none saved)
-        self.best_rot = None  # (N, J) vec4 ndarray, allocated at the first save
+        self.best_err = np.full(N, np.inf, np.float32)  # of the pose saved in rows.saved (inf: none saved)
         self.restarts = np.zeros(N, np.int32)
-        self.hist = np.zeros((3, N, rig.n_dof), np.float32)  # the last three window ends' angles, oldest first
+        self.hist = np.zeros((3, N, self.n_dof), np.float32)  # the last three window ends' angles, oldest first
         self.n_hist = np.zeros(N, np.int32)
+        rows = crowd.__dict__.get("_fabrik_rows")
+        if rows is None:
+            rows = crowd.__dict__["_fabrik_rows"] = _Rows(crowd)
+        self.rows = rows
 
     def run(self) -> None:
         crowd, req, b = self.crowd, self.req, self.crowd.buffers
         M, tol = req.max_iterations, req.tolerance
         weights = b.weights.copy()
-        self._window(np.arange(crowd.n), WINDOW)
-        clock = WINDOW
+        reachable = self._reachable(weights)
+        self._window(np.arange(crowd.n), min(WINDOW, M))
         try:
-            while clock < M:
-                left = M - clock
+            while True:
+                left = M - self.used
                 live = self.err > tol
-                restart = live & self.stalled & (left >= RESTART_LEFT)
-                act = np.flatnonzero((live & ~self.stalled) | restart)
+                restart = (live & self.stalled & reachable & (left >= RESTART_LEFT) & (self.restarts < MAX_RESTARTS)
+                           & (self.err <= RESTART_NEAR * tol))
+                act = np.flatnonzero(live & (left > 0) & (~self.stalled | restart))
                 if act.size == 0:
                     break
-                moved = self._between(act, restart[act])
-                on = np.zeros(crowd.n, bool)
-                on[act] = True
-                np.multiply(weights, on[:, None], out=b.weights)
-                self._window(act, min(WINDOW, left))
+                mine = act[reachable[act]]  # the unreachable ones only go on
+                moved = self._between(mine, restart[mine]) if mine.size else mine
+                # one launch per distinct budget: all but the last rounds have one, min(WINDOW, left)
+                budget = np.minimum(WINDOW, left[act])
+                for it in np.unique(budget)[::-1]:
+                    group = act[budget == it]
+                    on = np.zeros(crowd.n, bool)
+                    on[group] = True
+                    np.multiply(weights, on[:, None], out=b.weights)
+                    self._window(group, int(it))
                 # a moved start already within tolerance got no update, so no clamp to the limits: undo the move
-                undo = moved[b.iterations[moved] == 0]
+                undo = moved[self.last[moved] == 0]
                 if undo.size:
-                    self._restore(undo)
+                    self._put_back(undo)
                     self.err[undo] = self.best_err[undo]
                     self.stalled[undo] = True
-                clock += min(WINDOW, left)
         finally:
             np.copyto(b.weights, weights)
         back = np.flatnonzero(self.best_err < self.err)
         if back.size:
-            self._restore(back)
+            self._put_back(back)
             self.err[back] = self.best_err[back]
         np.copyto(b.error, self.err)
         np.copyto(b.iterations, self.used)
@@ -119,19 +149,35 @@ class _Windows:
         masked out by their weights)."""
         b = self.crowd.buffers
         fabrik.solve(self.crowd, replace(self.req, max_iterations=iterations))
-        self.used[act] += b.iterations[act]
+        self.last[act] = b.iterations[act]
+        self.used[act] += self.last[act]
         self.err[act] = b.error[act]
         self.stalled[act] = b.stalled[act] != 0
 
-    def _between(self, act: np.ndarray, restart: np.ndarray) -> np.ndarray:
-        """The characters act (K,) before their next window: restart (K,) bool ones restart, the others go on or
-        jump. Returns the characters given a new start (restarted or jumped)."""
+    def _reachable(self, weights: np.ndarray) -> np.ndarray:
+        """(N,) bool: no positively weighted target beyond its chain's reach from the root joint (Crowd._report's
+        UNREACHABLE test; all with a free root). Only these restart or jump: the others cannot converge."""
+        crowd, b = self.crowd, self.crowd.buffers
+        if self.req.root_weight is not None:
+            return np.ones(crowd.n, bool)
+        d = b.targets - crowd._base[:, None, :]
+        far = np.einsum("nek,nek->ne", d, d) > np.square(crowd.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
+        return ~np.any(far & (weights > 0), axis=1)
+
+    def _read(self, rotations, idx: np.ndarray) -> np.ndarray:
+        """(K, D) angles of the characters idx (K,) from rotations (N, J) (the crowd's, or the saved ones)."""
         from crowd_ik.kernels import fabrik_restart as k
 
-        crowd, ra = self.crowd, self.crowd.rig_arrays
-        which = act.astype(np.int32)
-        now = np.zeros((act.size, crowd.rig.n_dof), np.float32)
-        k.read_angles(ra["kind"], ra["axes"], ra["dof_start"], crowd.local_rot, which, now)
+        ra, rows, K = self.crowd.rig_arrays, self.rows, idx.size
+        rows.which[:K] = idx
+        prepared(k.read_angles)(ra["kind"], ra["axes"], ra["dof_start"], rotations, rows.which, K, rows.angles,
+                                serial_for(K * self.n_joints, JOINT))
+        return rows.angles[:K].copy()
+
+    def _between(self, act: np.ndarray, restart: np.ndarray) -> np.ndarray:
+        """The reachable characters act (K,) before their next window: restart (K,) bool ones restart, the others
+        go on or jump. Returns the characters given a new start (restarted or jumped)."""
+        now = self._read(self.crowd.local_rot, act)
         h, n = self.hist, self.n_hist
         h[0, act], h[1, act], h[2, act] = h[1, act], h[2, act], now
         n[act] = np.minimum(n[act] + 1, 3)
@@ -151,43 +197,40 @@ class _Windows:
             base = now[restart]
             older = self.best_err[ri] < self.err[ri]  # an earlier attempt was better: restart from it
             if older.any():
-                kept = np.zeros((int(older.sum()), crowd.rig.n_dof), np.float32)
-                k.read_angles(ra["kind"], ra["axes"], ra["dof_start"], self.best_rot, which[restart][older], kept)
-                base[older] = kept
+                base[older] = self._read(self.rows.saved, ri[older])
             lo, hi = self.lo, self.hi
             base = np.where(np.abs(base - lo) < AT_LIMIT, lo + PULL, np.where(np.abs(base - hi) < AT_LIMIT,
                                                                              hi - PULL, base))
-            kicks = np.stack([_kick(int(c), crowd.rig.n_dof) for c in self.restarts[ri]])
-            start[restart] = base + kicks
+            start[restart] = base + np.stack([_kick(int(c), self.n_dof) for c in self.restarts[ri]])
             self.restarts[ri] += 1
         if not moved.any():
             return act[:0]
         mi = act[moved]
-        self._save(mi)
-        start = np.clip(start[moved], self.lo, self.hi).astype(np.float32)
-        k.write_angles(ra["kind"], ra["axes"], ra["dof_start"], start, mi.astype(np.int32), crowd.local_rot)
-        crowd._fk(mi.astype(np.int32))
+        start = np.clip(start[moved], self.lo, self.hi)
+        self._write(mi, start)
         h[2, mi] = start
         n[mi] = 1
         return mi
 
-    def _save(self, idx: np.ndarray) -> None:
-        """Keep the current pose of the characters idx whose error beats their saved best."""
+    def _write(self, idx: np.ndarray, start: np.ndarray) -> None:
+        """Start the characters idx (K,) from the angles start (K, D), first saving the current pose of those whose
+        error beats their saved best."""
         from crowd_ik.kernels import fabrik_restart as k
 
-        better = idx[self.err[idx] < self.best_err[idx]]
-        if better.size == 0:
-            return
-        if self.best_rot is None:
-            crowd = self.crowd
-            self.best_rot = crowd.scratch("fabrik_best_rot", crowd.ti.math.vec4, (crowd.n, crowd.rig.n_joints))
-        k.gather_rows(self.crowd.local_rot, better.astype(np.int32), self.best_rot)
-        self.best_err[better] = self.err[better]
+        crowd, ra, rows, K = self.crowd, self.crowd.rig_arrays, self.rows, idx.size
+        better = self.err[idx] < self.best_err[idx]
+        self.best_err[idx[better]] = self.err[idx[better]]
+        rows.which[:K], rows.save[:K], rows.angles[:K] = idx, better, start
+        prepared(k.write_starts)(ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["dof_start"], crowd.root_pos,
+                                 crowd.root_yaw, rows.angles, rows.which, rows.save, K, rows.saved, crowd.local_rot,
+                                 crowd.world_pos, crowd.world_rot, self.n_joints, serial_for(K * self.n_joints, JOINT))
 
-    def _restore(self, idx: np.ndarray) -> None:
-        """Put the saved best pose of the characters idx back (rotations, then FK)."""
+    def _put_back(self, idx: np.ndarray) -> None:
+        """Put the saved best pose of the characters idx (K,) back (rotations, then FK)."""
         from crowd_ik.kernels import fabrik_restart as k
 
-        which = idx.astype(np.int32)
-        k.scatter_rows(self.best_rot, which, self.crowd.local_rot)
-        self.crowd._fk(which)
+        crowd, ra, rows, K = self.crowd, self.crowd.rig_arrays, self.rows, idx.size
+        rows.which[:K] = idx
+        prepared(k.put_back)(ra["parent"], ra["offset"], crowd.root_pos, crowd.root_yaw, rows.saved, rows.which, K,
+                             crowd.local_rot, crowd.world_pos, crowd.world_rot, self.n_joints,
+                             serial_for(K * self.n_joints, JOINT))
