@@ -64,3 +64,27 @@ def test_primitives_equal_the_concatenated_parts():
     assert (True, True, False) in seen and (False, False, True) in seen  # both before and after the hits
     world.simulate(10 * DT)
     assert primitives(world, 0.5)["capsules"]["a"].shape[1] == 3
+
+
+def test_shared_step_values_equal_the_ones_computed_apart():
+    """Characters.walk hands Gait.pose the foot targets it already has, and dodge filters with one gain: the
+    same values as computed inside."""
+    from crowd_ik.game.characters import lowpass, lowpass_gain
+
+    scene = scene_with(load_scene(None), size=(96, 64), **{"characters.count": 12, "shooters.count": 2,
+                                                           "bullets.pool_size": 256})
+    world = World(scene)
+    for _ in range(30):
+        world.step()
+    chars = world.characters
+    gait, speed = chars.gait, chars.motion.walking_speed
+    assert (gait.swing >= 0).any()  # some feet in the air
+    for got, want in zip(gait.pose(chars.yaw, speed, gait.targets()), gait.pose(chars.yaw, speed)):
+        np.testing.assert_array_equal(got, want)
+    rng = np.random.default_rng(4)
+    now, goal = rng.uniform(0, 1, 50), rng.uniform(0, 1, 50)
+    gain = lowpass_gain(now, goal, DT)
+    for shape in ((50,), (50, 3)):
+        cur, des = rng.normal(size=shape).astype(np.float32), rng.normal(size=shape).astype(np.float32)
+        np.testing.assert_array_equal(lowpass(cur, des, now, goal, DT, gain), lowpass(cur, des, now, goal, DT))
+    assert np.any(gain != gain[0])  # both time constants used
