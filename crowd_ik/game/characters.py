@@ -65,6 +65,14 @@ def lowpass(current: np.ndarray, desired: np.ndarray, magnitude_now, magnitude_d
     return (current + (desired - current) * k).astype(np.float32)
 
 
+def as_slice(rows):
+    """slice(first, last + 1) when rows (K,) are consecutive ascending indices (K >= 1), else rows as an array."""
+    rows = np.asarray(rows, np.intp)
+    if rows.size and np.array_equal(rows, np.arange(rows[0], rows[0] + rows.size)):
+        return slice(int(rows[0]), int(rows[0]) + rows.size)
+    return rows
+
+
 class Characters:
     """N characters of `body`'s rig: layout, Crowd, limbs, standing flags and dodge state."""
 
@@ -129,6 +137,9 @@ class Characters:
         self.gait = Gait(b, self.ground, self.yaw) if b.humanoid else None
         names = b.rig.effector_names
         self._hand_eff = [names.index("hand_l"), names.index("hand_r")] if b.humanoid else []
+        # the same rows as slices where they are consecutive (a view: no gather and scatter each step)
+        self._hand_rows = as_slice(self._hand_eff)
+        self._planted_rows = as_slice(np.flatnonzero(b.planted))
         self.arm_poles = ArmPoles(b, N) if b.humanoid else None  # elbows out and down (no knee poles: gait.plant)
 
     def walk(self, dt: float, obstacles: np.ndarray) -> None:
@@ -146,9 +157,9 @@ class Characters:
         feet = self.gait.targets()
         bob, hands, head = self.gait.pose(self.yaw, m.walking_speed, feet)
         targets = b.rest_targets(self.ground, self.yaw)
-        targets[:, self._hand_eff] += hands
+        targets[:, self._hand_rows] += hands
         targets[:, 0] += head
-        targets[:, b.planted] = feet
+        targets[:, self._planted_rows] = feet
         self.rest_targets = targets
         np.copyto(self.planted, feet)
         self.roots = (self.ground + np.float32([0.0, b.rest_root_y, 0.0])).astype(np.float32)
