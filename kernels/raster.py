@@ -32,8 +32,9 @@ Why this shape (see also crowd_ik/render.py):
   is used, its grid and fog only where no primitive in front of the ground hides them, and stores none
   of it (a follow camera never sees it again); the renderer stores it on the second frame that keeps
   the camera (draw_frame SHADE_FILL). `shade_frame_background` (compute, store and use) stays for tests.
-- `raster_capsules` loops, in each row of a primitive's box, only over the span of pixels whose rays
-  may meet the capsule (kernels/raster_cover.py: conservative, so the keys stay the same bit for bit).
+- `raster_capsules` and `splat_shadows` loop, in each row of a wide enough box, only over the span of
+  pixels whose rays may meet the capsule or whose ground points may be in its shadow
+  (kernels/raster_cover.py: conservative, so keys and shadow levels stay the same bit for bit).
 - Work split for the cores: Taichi's CPU backend hands out a parallel loop in tasks of at least 512
   iterations, so the image passes loop over (row, SPAN-pixel piece), (row, tile column) or tiles, and
   `splat_shadows` over several items per primitive (each every parts-th texel row) when there are few.
@@ -69,7 +70,7 @@ from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND:
     dir_origin, effective_radius, empty_key, mark_tiles, pixel_range, primitive_parts, row3, shadow_soft, shadow_value,
     sphere_bounds,
 )
-from crowd_ik.kernels.raster_cover import capsule_row
+from crowd_ik.kernels.raster_cover import ROW_SPAN_MIN, capsule_row, shadow_row_span
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
     background_all, shade_all, shade_background, shade_frame, shade_frame_background, shade_frame_fresh, shade_fresh,
     shade_tiles,
@@ -200,7 +201,10 @@ def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius
                 mark_tiles(tiles, yr[0], yr[1], xr[0], xr[1])
             d0 = dir_origin(cam)
             for py in range(yr[0], yr[1] + 1):
-                x0, x1 = capsule_row(a, b, r, cam, py, xr[0], xr[1])
+                x0 = xr[0]
+                x1 = xr[1]
+                if x1 - x0 >= ROW_SPAN_MIN:  # (a span costs more than it saves on a narrow box)
+                    x0, x1 = capsule_row(a, b, r, cam, py, xr[0], xr[1])
                 for px in range(x0, x1 + 1):
                     rd = (d0 + right * ti.cast(px, ti.f32) - up * ti.cast(py, ti.f32)).normalized()
                     t = capsule_hit(rd, a, b, r)
@@ -297,7 +301,11 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
                 d0 = dir_origin(cam)
                 py = yr[0] + part
                 while py <= yr[1]:
-                    for px in range(xr[0], xr[1] + 1):
+                    x0 = xr[0]
+                    x1 = xr[1]
+                    if x1 - x0 >= ROW_SPAN_MIN:
+                        x0, x1 = shadow_row_span(a, b, r, cam, py, xr[0], xr[1])
+                    for px in range(x0, x1 + 1):
                         d = d0 + right * (2.0 * px + 0.5) - up * (2.0 * py + 0.5)
                         if d[1] < 0.0:
                             g = eye + d * (-eye[1] / d[1])
