@@ -16,6 +16,10 @@ no Taichi state; crowd_ik/solvers/settings.py chooses the machine's width L):
 - :func:`free_recover` then recovers the rotations of the final positions, once, L consecutive
   characters at a time (exact on a chain; at a sub-base the best fit, as kernels/fabrik.py's
   recover_and_constrain does for unlimited ball joints), runs FK and measures the fitted pose's error.
+  It re-sums the weights that reach each joint (the passes' sums, in the same order) instead of reading
+  them back, keeps its packet's pose in field rows, and writes it to the crowd's arrays once, joint by
+  joint, from local vectors (a lane of a local vector is one load; a lane of a field row reloads the
+  field's base after every store to an ndarray).
 
 The streams' scratch lives in fields of compile-time shape (MAX_STREAMS rows of a power-of-two joint
 capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after every store to any array,
@@ -24,6 +28,11 @@ ms). Per lane the arithmetic is that of the one-character solver (kernels/fabrik
 recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same order, except that a
 normalisation multiplies by one reciprocal (kernels/lane_math.py), so statuses and iteration counts
 match it and results do not depend on a character's lane-mates.
+
+Flat rows: a character's rows of an (N, J) ndarray are addressed as ``a[0, i * J + j]``. Taichi's
+ndarrays are C-contiguous, so that is the same element, and with a constant first index LLVM drops the
+reload of the array's shape and the multiply that otherwise follow every store (only the pointer is
+reloaded); the per-lane hand-outs and the write-back are chains of such stores.
 """
 
 import functools
@@ -42,7 +51,7 @@ vec4 = ti.math.vec4
 def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
     """The joint-moving kernel for L lanes per stream. Scratch per stream s (fields of max_joints and
     max_effectors rows): px, py, pz (pose), wx, wy, wz, aw (proposals and their weights), tx, ty, tz, tw
-    (targets, weights). Output per character i in (P, J) rows of LO lanes, [i // LO][i % LO]: gx, gy, gz, ga,
+    (targets, weights). Output per character i in (P, J) rows of LO lanes, [i // LO][i % LO]: gx, gy, gz,
     the last proposals, laid out for free_recover(LO)."""
     V = ti.types.vector(L, ti.f32)
     VO = ti.types.vector(LO, ti.f32)
@@ -73,7 +82,6 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         weights: ndarray(ndim=2),
         n_streams: ti.i32,
         gx: ndarray(dtype=VO, ndim=2), gy: ndarray(dtype=VO, ndim=2), gz: ndarray(dtype=VO, ndim=2),
-        ga: ndarray(dtype=VO, ndim=2),
         max_iterations: ti.i32,
         tolerance: ti.f32,
         error: ndarray(ndim=1),
@@ -105,11 +113,11 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                             error[i] = err[l]
                             iterations[i] = ti.cast(it[l], ti.i32)
                             stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
-                            for j in range(J):
-                                gx[i // LO, j][i % LO] = wx[s, j][l]
-                                gy[i // LO, j][i % LO] = wy[s, j][l]
-                                gz[i // LO, j][i % LO] = wz[s, j][l]
-                                ga[i // LO, j][i % LO] = aw[s, j][l]
+                            row, lane = (i // LO) * J, i % LO
+                            for j in range(J):  # (flat rows: see the module docstring)
+                                gx[0, row + j][lane] = wx[s, j][l]
+                                gy[0, row + j][lane] = wy[s, j][l]
+                                gz[0, row + j][lane] = wz[s, j][l]
                         cur[l] = -1
                         live[l] = 0.0
                         while nxt < end and cur[l] < 0:  # take the next character that needs iterations
@@ -127,7 +135,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                                     e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
                             if max_iterations > 0 and e0 > tolerance:
                                 for j in range(J):
-                                    v = world_pos[i, j]
+                                    v = world_pos[0, i * J + j]
                                     px[s, j][l], py[s, j][l], pz[s, j][l] = v.x, v.y, v.z
                                 cur[l] = i
                                 live[l] = 1.0
@@ -202,16 +210,18 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
 
 @functools.cache
 def free_recover(L: int, max_joints: int):
-    """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz, ga that free_solver left
-    in (P, J) lane rows; each stream keeps its packet's world pose in field rows fx, fy, fz, fqx, fqy, fqz, fqw."""
+    """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz that free_solver left in
+    (P, J) lane rows; each stream keeps its packet's weights in field rows aw, its local rotations in lqx..lqw
+    and its world pose in fx, fy, fz, fqx, fqy, fqz, fqw."""
     V = ti.types.vector(L, ti.f32)
-    fx, fy, fz, fqx, fqy, fqz, fqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
+    fx, fy, fz, fqx, fqy, fqz, fqw, lqx, lqy, lqz, lqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints))
+                                                         for _ in range(11))
     acc = ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, 4))  # swing_round's running sums
+    aw = ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints))  # the proposals' weights
 
     @ti.func
     def swing_round(s, p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, bone: ti.template(),
-                    child_list: ti.template(), gx: ti.template(), gy: ti.template(), gz: ti.template(),
-                    ga: ti.template()):
+                    child_list: ti.template(), gx: ti.template(), gy: ti.template(), gz: ti.template()):
         """fabrik.swing_round per lane: q turned by the weighted mean of the minimal swings aiming each active
         child at its proposal (inverse base rotation i, joint position j). The sums run in the stream's field
         row acc, not in registers: that keeps LLVM's loop vectorizer off the loop over children, which it
@@ -222,7 +232,7 @@ def free_recover(L: int, max_joints: int):
             acc[s, k] = V(0.0)
         for cc in range(c0, c1):
             c = child_list[cc]
-            wc = ga[p, c]
+            wc = aw[s, c]
             on = wc > 0.0
             o = bone[c]  # the child's unit direction: qrot of it needs no normalisation
             ux, uy, uz = lm.qrot(qx, qy, qz, qw, V(o.x), V(o.y), V(o.z))
@@ -256,7 +266,6 @@ def free_recover(L: int, max_joints: int):
         targets: ndarray(dtype=vec3, ndim=2),
         weights: ndarray(ndim=2),
         gx: ndarray(dtype=V, ndim=2), gy: ndarray(dtype=V, ndim=2), gz: ndarray(dtype=V, ndim=2),
-        ga: ndarray(dtype=V, ndim=2),
         n_streams: ti.i32,
         error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1),
@@ -264,6 +273,7 @@ def free_recover(L: int, max_joints: int):
         """The characters that iterated get the rotations of their proposals, FK and that pose's error."""
         N = root_pos.shape[0]
         J = parent.shape[0]
+        E = eff_joint.shape[0]
         P = gx.shape[0]
         chunk = (P + n_streams - 1) // n_streams
         ti.loop_config(block_dim=1)
@@ -278,12 +288,26 @@ def free_recover(L: int, max_joints: int):
                     r = root_pos[i]
                     rx[l], ry[l], rz[l], h[l] = r.x, r.y, r.z, 0.5 * root_yaw[i]
                 if m.max() > 0.0:
-                    for j in range(J):  # the local rotations first (fq rows hold them until the sweep reaches j)
+                    # the proposals' weights: free_solver's backward sums (the same additions in the same order)
+                    for j in range(J):
+                        aw[s, j] = V(0.0)
+                    for e in range(E):
+                        w = V(0.0)
+                        for l in range(L):
+                            w[l] = weights[ti.min(p * L + l, N - 1), e]
+                        k = eff_joint[e]
+                        aw[s, k] = ti.select(w > 0.0, aw[s, k] + w, aw[s, k])
+                    for jj in range(J - 1):
+                        j = J - 1 - jj
+                        q = parent[j]
+                        w = aw[s, j]
+                        aw[s, q] = ti.select(w > 0.0, aw[s, q] + w, aw[s, q])
+                    for j in range(J):  # the local rotations (lq rows; the sweep turns them in place)
                         qx, qy, qz, qw = V(0.0), V(0.0), V(0.0), V(0.0)
                         for l in range(L):
-                            qv = local_rot[ti.min(p * L + l, N - 1), j]
+                            qv = local_rot[0, ti.min(p * L + l, N - 1) * J + j]
                             qx[l], qy[l], qz[l], qw[l] = qv.x, qv.y, qv.z, qv.w
-                        fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = qx, qy, qz, qw
+                        lqx[s, j], lqy[s, j], lqz[s, j], lqw[s, j] = qx, qy, qz, qw
                     yx, yy, yz, yw = V(0.0), ti.sin(h), V(0.0), ti.cos(h)  # quat.yaw_quat
                     for j in range(J):
                         par = parent[j]
@@ -294,14 +318,14 @@ def free_recover(L: int, max_joints: int):
                         o = offset[j]
                         ox, oy, oz = lm.qrot(bqx, bqy, bqz, bqw, V(o.x), V(o.y), V(o.z))
                         jx, jy, jz = bx + ox, by + oy, bz + oz
-                        qx, qy, qz, qw = fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j]
+                        qx, qy, qz, qw = lqx[s, j], lqy[s, j], lqz[s, j], lqw[s, j]
                         c0 = child_start[j]
                         c1 = child_start[j + 1]
                         if kind[j] > 0 and c1 > c0:
                             n_active = V(0.0)
                             for cc in range(c0, c1):
-                                n_active += ti.select(ga[p, child_list[cc]] > 0.0, 1.0, 0.0)
-                            turn = (ga[p, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
+                                n_active += ti.select(aw[s, child_list[cc]] > 0.0, 1.0, 0.0)
+                            turn = (aw[s, j] > 0.0) & (n_active > 0.0) & (m > 0.0)
                             if ti.select(turn, 1.0, 0.0).max() > 0.0:  # (.max() of an integer vector fails to compile)
                                 ix, iy, iz, iw = -bqx, -bqy, -bqz, bqw
                                 # one round, or SWING_ROUNDS where some lane's joint is a sub-base (a loop around
@@ -311,7 +335,7 @@ def free_recover(L: int, max_joints: int):
                                 sx, sy, sz, sw = qx, qy, qz, qw
                                 for r in range(rounds):
                                     tx, ty, tz, tw = swing_round(s, p, tx, ty, tz, tw, c0, c1, ix, iy, iz, iw, jx, jy,
-                                                                 jz, bone, child_list, gx, gy, gz, ga)
+                                                                 jz, bone, child_list, gx, gy, gz)
                                     if r == 0:
                                         sx, sy, sz, sw = tx, ty, tz, tw
                                 several = n_active > 1.0  # the sub-base lanes take the refined rotation
@@ -319,23 +343,32 @@ def free_recover(L: int, max_joints: int):
                                 sz, sw = ti.select(several, tz, sz), ti.select(several, tw, sw)
                                 qx, qy = ti.select(turn, sx, qx), ti.select(turn, sy, qy)
                                 qz, qw = ti.select(turn, sz, qz), ti.select(turn, sw, qw)
-                                for l in range(L):
-                                    if turn[l]:
-                                        local_rot[p * L + l, j] = vec4(qx[l], qy[l], qz[l], qw[l])
+                                lqx[s, j], lqy[s, j], lqz[s, j], lqw[s, j] = qx, qy, qz, qw
                         wqx, wqy, wqz, wqw = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
                         fx[s, j], fy[s, j], fz[s, j] = jx, jy, jz
                         fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j] = wqx, wqy, wqz, wqw
+                    # the pose out, one character's rows at a time (a lane that did not turn a joint writes back the
+                    # rotation it read), and the fitted pose's error
+                    for j in range(J):
+                        # one joint's rows in locals first: a lane of a local vector is one load, a lane of a field
+                        # row reloads the field's base after every store to an ndarray
+                        ax, ay, az, a4 = lqx[s, j], lqy[s, j], lqz[s, j], lqw[s, j]
+                        cx, cy, cz = fx[s, j], fy[s, j], fz[s, j]
+                        dx, dy, dz, dw = fqx[s, j], fqy[s, j], fqz[s, j], fqw[s, j]
                         for l in range(L):
                             if m[l] > 0.0:
-                                world_pos[p * L + l, j] = vec3(jx[l], jy[l], jz[l])
-                                world_rot[p * L + l, j] = vec4(wqx[l], wqy[l], wqz[l], wqw[l])
+                                f = (p * L + l) * J + j
+                                local_rot[0, f] = vec4(ax[l], ay[l], az[l], a4[l])
+                                world_pos[0, f] = vec3(cx[l], cy[l], cz[l])
+                                world_rot[0, f] = vec4(dx[l], dy[l], dz[l], dw[l])
                     for l in range(L):
                         i = p * L + l
                         if m[l] > 0.0:
                             err = 0.0
-                            for e in range(eff_joint.shape[0]):
+                            for e in range(E):
                                 if weights[i, e] > 0.0:
-                                    err = ti.max(err, (world_pos[i, eff_joint[e]] - targets[i, e]).norm())
+                                    k = eff_joint[e]
+                                    err = ti.max(err, (vec3(fx[s, k][l], fy[s, k][l], fz[s, k][l]) - targets[i, e]).norm())
                             error[i] = err
 
     return recover

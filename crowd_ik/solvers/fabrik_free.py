@@ -20,7 +20,7 @@ def solve_free(crowd, max_iterations: int, tolerance: float, general) -> None:
     LP = lane_plan.pass_lanes(L)
     P = lane_plan.packets(crowd.n, L)
     V = ti.types.vector(L, ti.f32)
-    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz", "ga")]
+    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz")]
     b = crowd.buffers
     prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
         ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),

@@ -1,0 +1,138 @@
+"""Constraint-free FABRIK as SIMD lanes (kernels/fabrik_lanes.py, solvers/fabrik_free.py): the recovery's write-back,
+its re-summed weights and the flat-row addressing give what the one-character kernel and the NumPy twin give, for
+every lane, any stream count and a character alone."""
+
+import numpy as np
+import pytest
+
+import crowd_ik as cik
+from crowd_ik.crowd import Status
+from crowd_ik.geometry.fk import forward_kinematics
+from crowd_ik.reference.fabrik import fabrik_solve
+
+
+def _tree():
+    """A constraint-free tree of 7 joints (a sub-base with two branches), two effectors."""
+    return cik.Rig(
+        tuple(cik.Joint(n, p, o) for n, p, o in [("root", -1, (0, 0, 0)), ("a", 0, (0, 0.3, 0)), ("b", 1, (0, 0.3, 0)),
+                                              ("l", 2, (0.2, 0.1, 0)), ("r", 2, (-0.2, 0.1, 0)), ("lt", 3, (0.2, 0, 0)),
+                                              ("rt", 4, (-0.2, 0, 0))]),
+        (cik.Effector("left", 5), cik.Effector("right", 6)))
+
+
+def _case(rig, n, seed):
+    """n characters, turned roots, a start pose off rest, targets near, on, or out of reach, per-character weights."""
+    rng = np.random.default_rng(seed)
+    crowd = cik.Crowd(rig, n=n, spacing=1.5)
+    roots, _ = crowd.roots()
+    crowd.set_roots(roots, yaw=rng.uniform(-3, 3, n).astype(np.float32))
+    angles = rng.normal(size=(n, rig.n_dof)).astype(np.float32) * 0.3
+    crowd.set_angles(angles)
+    targets = crowd.effector_positions() + rng.normal(size=(n, rig.n_effectors, 3)).astype(np.float32) * 0.3
+    targets[0] = crowd.effector_positions()[0]  # already there: no iteration, the pose is left as it is
+    targets[1, 0] += (5.0, 0.0, 0.0)  # out of reach
+    weights = np.ones((n, rig.n_effectors), np.float32)
+    if rig.n_effectors > 1:
+        weights[2::3, 0] = 0.0  # one branch only: the sub-base has one active child
+        weights[3::3, 1] = 2.5  # unequal weights: the sub-base's centroid and swing mean are weighted
+    return crowd, angles, targets, weights
+
+
+RIGS = {"chain": lambda: cik.Rig.chain(7, 0.2, dim=3), "tree": _tree}
+
+
+@pytest.mark.parametrize("name", sorted(RIGS))
+def test_lanes_match_the_twin_and_the_recovered_pose_is_its_own_fk(name):
+    """Against the NumPy twin (deferred recovery, float64): the same iterations for nearly all, poses within 2e-4 m;
+    and the written pose is FK of the written local rotations (world positions and rotations, every joint)."""
+    rig = RIGS[name]()
+    n = 3 * cik.solvers.settings.lanes() + 5  # a partial last packet
+    crowd, angles, targets, weights = _case(rig, n, seed=4)
+    rot0 = crowd.rotations()
+    roots, yaw = crowd.roots()
+    pos0 = crowd.joint_positions()
+    rep = crowd.solve(targets, weights=weights, max_iterations=30, tolerance=1e-4)
+    rot, pos, err, iters, _ = fabrik_solve(rig, roots, yaw, rot0, targets, weights=weights, max_iterations=30,
+                                           tolerance=1e-4)
+    same = rep.iterations == iters
+    reachable = rep.status != Status.UNREACHABLE
+    assert np.mean(same[reachable]) >= 0.95 and same[0] and rep.iterations[0] == 0
+    np.testing.assert_allclose(crowd.joint_positions()[same], pos[same], atol=2e-4)
+    np.testing.assert_allclose(rep.error[same], err[same], atol=2e-4)
+    np.testing.assert_array_equal(crowd.joint_positions()[0], pos0[0])  # not iterated: not rewritten
+    fk_pos, fk_rot = forward_kinematics(rig, roots.astype(np.float64), yaw.astype(np.float64),
+                                        crowd.rotations().astype(np.float64))
+    np.testing.assert_allclose(crowd.joint_positions(), fk_pos, atol=2e-5)
+    np.testing.assert_allclose(np.abs(np.sum(crowd.world_rotations() * fk_rot, axis=-1)), 1.0, atol=2e-5)
+    # the error reported is the written pose's
+    eff = rig.arrays["eff_joint"]
+    d = np.linalg.norm(crowd.joint_positions()[:, eff] - targets, axis=-1)
+    np.testing.assert_allclose(rep.error, np.max(np.where(weights > 0, d, 0.0), axis=1), atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(RIGS))
+def test_lanes_match_the_one_character_kernel(monkeypatch, name):
+    """The lane kernels against fabrik_solve one character per thread with the rotations recovered once (the path
+    the adapter takes at one lane): the same status, iterations and pose up to the lanes' reciprocal multiplies."""
+    from crowd_ik.solvers import settings
+
+    rig = RIGS[name]()
+    L = settings.lanes()
+    n = 6 * L + 3
+    got = []
+    for lanes in (L, 1):
+        monkeypatch.setattr(settings, "lanes", lambda lanes=lanes: lanes)
+        crowd, _, targets, weights = _case(rig, n, seed=11)
+        rep = crowd.solve(targets, weights=weights, max_iterations=40, tolerance=1e-4)
+        got.append((rep, crowd.joint_positions(), crowd.rotations(), crowd.world_rotations()))
+    (a, pa, qa, wa), (b, pb, qb, wb) = got
+    reachable = a.status != Status.UNREACHABLE
+    same = a.iterations == b.iterations
+    assert np.mean(same[reachable]) >= 0.95
+    np.testing.assert_array_equal(a.status[reachable], b.status[reachable])
+    for x, y in ((pa, pb), (qa, qb), (wa, wb)):
+        np.testing.assert_allclose(x[same], y[same], atol=1e-4)
+
+
+def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
+    """Batch == one at a time, bit for bit: a character alone in a padded packet, and the whole crowd run with one
+    stream, two, or the default count (which threads run which streams is all the thread count changes)."""
+    from crowd_ik.kernels import fabrik_lanes, lane_plan
+    from crowd_ik.solvers import bundles, settings
+
+    rig = _tree()
+    n = 2 * settings.lanes() + 7
+    crowd, angles, targets, weights = _case(rig, n, seed=8)
+    batch = crowd.solve(targets, weights=weights, max_iterations=40, tolerance=1e-4)
+    pos, rot, wrot = crowd.joint_positions(), crowd.rotations(), crowd.world_rotations()
+    roots, yaw = crowd.roots()
+    for i in (0, 1, 2, 3, 9, n - 1):
+        one = cik.Crowd(rig, n=1)
+        one.set_roots(roots[i:i + 1], yaw=yaw[i:i + 1])
+        one.set_angles(angles[i:i + 1])
+        rep = one.solve(targets[i:i + 1], weights=weights[i:i + 1], max_iterations=40, tolerance=1e-4)
+        assert rep.iterations[0] == batch.iterations[i] and rep.status[0] == batch.status[i]
+        np.testing.assert_array_equal(one.joint_positions()[0], pos[i])
+        np.testing.assert_array_equal(one.rotations()[0], rot[i])
+        np.testing.assert_array_equal(one.world_rotations()[0], wrot[i])
+    # the kernels themselves with other stream counts
+    L, ra, ti = settings.lanes(), crowd.rig_arrays, crowd.ti
+    LP, P, J, E = lane_plan.pass_lanes(L), lane_plan.packets(n, L), rig.n_joints, rig.n_effectors
+    V = ti.types.vector(L, ti.f32)
+    for streams in (1, 2):
+        crowd.set_angles(angles)
+        crowd.buffers.targets[...] = targets
+        crowd.buffers.weights[...] = weights
+        proposals = [ti.ndarray(V, shape=(P, J)) for _ in range(3)]
+        fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
+            ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
+            streams, *proposals, 40, 1e-4, *bundles.result(crowd))
+        fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
+            ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+            *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, streams,
+            crowd.buffers.error, crowd.buffers.iterations)
+        np.testing.assert_array_equal(crowd.buffers.iterations, batch.iterations)
+        np.testing.assert_array_equal(crowd.buffers.error, batch.error)
+        np.testing.assert_array_equal(crowd.joint_positions(), pos)
+        np.testing.assert_array_equal(crowd.rotations(), rot)
+        np.testing.assert_array_equal(crowd.world_rotations(), wrot)
