@@ -291,6 +291,11 @@ class Crowd:
         solves it as 3 more unknowns weighted w like joint_weights (bigger moves more); FABRIK and CCD first
         move the root by the sub-base rule of kernels/root_shift.py (by min(w, 1) x the weighted mean of how
         far targets lie beyond their chains' reach), then solve from there with it fixed.
+
+        FABRIK on a rig with joint limits, with more than 8 iterations and no orientation or rotation targets, runs
+        in windows of 8 between which stalled characters restart and slowly converging ones jump ahead
+        (solvers/fabrik_restart.py); each keeps its best pose, and report.iterations counts every update, restarts
+        included, never more than max_iterations.
         """
         req = check_request(self.rig, self.n, targets, method, max_iterations, tolerance, weights, orientations,
                             rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles,
