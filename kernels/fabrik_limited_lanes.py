@@ -22,6 +22,7 @@ import functools
 import taichi as ti
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_trig as lt
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.kernels.quat import yaw_quat
 
@@ -128,9 +129,9 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                     go = go & (lm.norm3(apx, apy, apz) > 1e-6) & (lm.norm3(npx, npy, npz) > 1e-6)
                     ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
                     cx, cy, cz = lm.cross(apx, apy, apz, npx, npy, npz)
-                    h = 0.5 * (ramp * ti.atan2(lm.dot3(bx, by, bz, cx, cy, cz), lm.dot3(apx, apy, apz, npx, npy, npz)))
-                    sh = ti.sin(h)
-                    tx_, ty_, tz_, tw_ = lm.qnormalize(*lm.qmul(bx * sh, by * sh, bz * sh, ti.cos(h), qx, qy, qz, qw))
+                    h = 0.5 * (ramp * lt.atan2(lm.dot3(bx, by, bz, cx, cy, cz), lm.dot3(apx, apy, apz, npx, npy, npz)))
+                    sh, ch = lt.sin_cos(h)
+                    tx_, ty_, tz_, tw_ = lm.qnormalize(*lm.qmul(bx * sh, by * sh, bz * sh, ch, qx, qy, qz, qw))
                     outx, outy = ti.select(go, tx_, qx), ti.select(go, ty_, qy)
                     outz, outw = ti.select(go, tz_, qz), ti.select(go, tw_, qw)
         return outx, outy, outz, outw
@@ -170,18 +171,19 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                 ok = on & (R > 1e-9) & (want2 > 1e-12)
                 if lm.any_lane(ok):
                     d = dof_start[c]
-                    phi = ti.atan2(B, A)
-                    spread = ti.acos(ti.math.clamp((D - C) / R, -1.0, 1.0))
-                    now = lm.twist_angle(lx[s, c], ly[s, c], lz[s, c], lw[s, c], ax.x, ax.y, ax.z)
+                    phi = lt.atan2(B, A)
+                    spread = lt.acos(ti.math.clamp((D - C) / R, -1.0, 1.0))
+                    now = lt.twist_angle(lx[s, c], ly[s, c], lz[s, c], lw[s, c], ax.x, ax.y, ax.z)
                     t = V(0.0)
                     best = V(1e30)
                     for k in ti.static(range(2)):
                         cand = ti.math.clamp(lm.wrap_angle(phi + (1.0 - 2.0 * k) * spread), lo[d], hi[d])
-                        score = ti.abs(C + A * ti.cos(cand) + B * ti.sin(cand) - D) * 1e3 + ti.abs(cand - now)
+                        sc, cc = lt.sin_cos(cand)
+                        score = ti.abs(C + A * cc + B * sc - D) * 1e3 + ti.abs(cand - now)
                         t = ti.select(score < best, cand, t)
                         best = ti.select(score < best, score, best)
                     ux, uy, uz = lm.normalized(vwx, vwy, vwz)
-                    hx, hy, hz, hw = lm.axis_angle(ax.x, ax.y, ax.z, t)
+                    hx, hy, hz, hw = lt.axis_angle(ax.x, ax.y, ax.z, t)
                     vx, vy, vz = lm.qrot(hx, hy, hz, hw, bx, by, bz)
                     vx, vy, vz = a.x + vx, a.y + vy, a.z + vz
                     px, py, pz = lm.normalized(*lm.qrot(qx, qy, qz, qw, vx, vy, vz))
@@ -201,10 +203,10 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                     sv = ok & (bend > TWIST_MIN_BEND) & (lm.norm3(px, py, pz) > 1e-9)
                     if lm.any_lane(sv):
                         ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
-                        turn = ramp * lm.best_angle_about(ux, uy, uz, nx_, ny_, nz_, px, py, pz)
+                        turn = ramp * lt.best_angle_about(ux, uy, uz, nx_, ny_, nz_, px, py, pz)
                         sv = sv & (ti.abs(turn) > 1e-5)  # warm-started frames mostly need none
                         if lm.any_lane(sv):
-                            ex, ey, ez, ew = lm.axis_angle(ux, uy, uz, turn)
+                            ex, ey, ez, ew = lt.axis_angle(ux, uy, uz, turn)
                             ex, ey, ez, ew = lm.qnormalize(*lm.qmul(ex, ey, ez, ew, mx, my, mz, mw))
                             first = a.normalized()
                             off0, off1 = V(0.0), V(0.0)
@@ -271,9 +273,9 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             s_cross += wc * lm.dot3(ax.x, ax.y, ax.z, *lm.cross(ux, uy, uz, vx, vy, vz))
                             s_dot += wc * lm.dot3(ux, uy, uz, vx, vy, vz)
                     turn = (s_cross != 0.0) | (s_dot != 0.0)
-                    h = 0.5 * ti.atan2(s_cross, s_dot)
-                    sh = ti.sin(h)
-                    hx, hy, hz, hw = lm.qnormalize(*lm.qmul(ax.x * sh, ax.y * sh, ax.z * sh, ti.cos(h), qx, qy, qz, qw))
+                    h = 0.5 * lt.atan2(s_cross, s_dot)
+                    sh, ch = lt.sin_cos(h)
+                    hx, hy, hz, hw = lm.qnormalize(*lm.qmul(ax.x * sh, ax.y * sh, ax.z * sh, ch, qx, qy, qz, qw))
                     qx, qy, qz, qw = ti.select(turn, hx, qx), ti.select(turn, hy, qy), ti.select(turn, hz, qz), \
                         ti.select(turn, hw, qw)
                 else:

@@ -6,10 +6,19 @@ kernels/quat.py; the twin's branches become per-lane selects. The costly branche
 decomposition and rebuild where a box limit bites, a hinge's clamp, the cone) are computed only when
 some lane of ``on`` (the lanes whose result is used) needs them: lanes that do not take the branch get
 the other side, so a lane's result never depends on its lane-mates.
+
+Trigonometry: a hinge's and a universal joint's angles use the polynomials of kernels/lane_trig.py; the ball
+joint's (the cone's angle, the Euler decomposition and rebuild where a box limit bites, the cone's swing back, the
+cone-within-box bisection) keep libm's functions, one call per lane. A ball joint pinned on its cone turns by
+ang - cone, so a few ulp of difference in ang grow over the iterations: with the polynomials there a chain with
+cone and box limits had 5 of 150 characters with another iteration count than the one-character kernel (the
+test allows 4), with libm 2; and the rare branches cost little time, while the polynomials inlined in every
+copy of constrain_ball added compile time.
 """
 
 import taichi as ti
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_trig as lt
 
 from crowd_ik.solvers.settings import CONE_BOX_STEPS, GIMBAL
 
@@ -39,7 +48,7 @@ def quat_to_euler_xyz(x, y, z, w):
     lock = ti.abs(r02) >= GIMBAL
     r21 = 2.0 * (y * z + x * w)
     r11 = 1.0 - 2.0 * (x * x + z * z)
-    a = ti.select(lock, ti.atan2(r21, r11), ti.atan2(-r12, r22))
+    a = ti.atan2(ti.select(lock, r21, -r12), ti.select(lock, r11, r22))  # one atan2 of the selected entries
     c = ti.select(lock, 0.0, ti.atan2(-r01, r00))
     return a, b, c
 
@@ -69,8 +78,8 @@ def constrain_hinge(qx, qy, qz, qw, ax0, lo: ti.template(), hi: ti.template(), l
     inside = (n2 > 1e-12) & (lim_p[s, 0] <= p) & (p <= lim_p[s, 1])
     ox, oy, oz, ow = ax0.x * t * r, ax0.y * t * r, ax0.z * t * r, w * r
     if lm.any_lane(on & (inside == 0)):
-        ang = ti.math.clamp(lm.twist_angle(qx, qy, qz, qw, ax0.x, ax0.y, ax0.z), lo[s], hi[s])
-        cx, cy, cz, cw = lm.axis_angle(ax0.x, ax0.y, ax0.z, ang)
+        ang = ti.math.clamp(lt.twist_angle(qx, qy, qz, qw, ax0.x, ax0.y, ax0.z), lo[s], hi[s])
+        cx, cy, cz, cw = lt.axis_angle(ax0.x, ax0.y, ax0.z, ang)
         ox, oy, oz, ow = ti.select(inside, ox, cx), ti.select(inside, oy, cy), ti.select(inside, oz, cz), \
             ti.select(inside, ow, cw)
     return ox, oy, oz, ow
@@ -81,12 +90,12 @@ def constrain_universal(qx, qy, qz, qw, ax0, ax1, lo: ti.template(), hi: ti.temp
     """The universal case of quat.constrain_rotation: quat.joint_angles, clamped, quat.joint_quat."""
     vx, vy, vz = lm.qrot(qx, qy, qz, qw, ax1.x, ax1.y, ax1.z)
     cx, cy, cz = lm.cross(ax1.x, ax1.y, ax1.z, vx, vy, vz)
-    t0 = ti.atan2(lm.dot3(ax0.x, ax0.y, ax0.z, cx, cy, cz), lm.dot3(ax1.x, ax1.y, ax1.z, vx, vy, vz))
-    ux, uy, uz, uw = lm.axis_angle(ax0.x, ax0.y, ax0.z, t0)
+    t0 = lt.atan2(lm.dot3(ax0.x, ax0.y, ax0.z, cx, cy, cz), lm.dot3(ax1.x, ax1.y, ax1.z, vx, vy, vz))
+    ux, uy, uz, uw = lt.axis_angle(ax0.x, ax0.y, ax0.z, t0)
     rx, ry, rz, rw = lm.qmul(-ux, -uy, -uz, uw, qx, qy, qz, qw)
-    t1 = lm.twist_angle(rx, ry, rz, rw, ax1.x, ax1.y, ax1.z)
-    ax, ay, az, aw = lm.axis_angle(ax0.x, ax0.y, ax0.z, ti.math.clamp(t0, lo[s], hi[s]))
-    bx, by, bz, bw = lm.axis_angle(ax1.x, ax1.y, ax1.z, ti.math.clamp(t1, lo[s + 1], hi[s + 1]))
+    t1 = lt.twist_angle(rx, ry, rz, rw, ax1.x, ax1.y, ax1.z)
+    ax, ay, az, aw = lt.axis_angle(ax0.x, ax0.y, ax0.z, ti.math.clamp(t0, lo[s], hi[s]))
+    bx, by, bz, bw = lt.axis_angle(ax1.x, ax1.y, ax1.z, ti.math.clamp(t1, lo[s + 1], hi[s + 1]))
     return lm.qmul(ax, ay, az, aw, bx, by, bz, bw)
 
 

@@ -22,7 +22,10 @@ The polynomials are Cephes' single-precision minimax fits (Moshier), the range r
   1/2, where pi/2 - 2p doubles p's rounding); NaN outside [-1, 1].
 """
 
+import functools
+
 import taichi as ti
+from crowd_ik.kernels import lane_math as lm
 
 PI = 3.141592653589793
 HALF_PI = 1.5707963267948966
@@ -47,7 +50,7 @@ def _cos_poly(z):
 
 
 @ti.func
-def sin_cos(x):
+def _sin_cos(x):
     """(sin x, cos x) from one range reduction."""
     # r = x - k pi/2 as (x - k C1) in float64, exact, then - k C2 in float32. Fast math reassociates a split done
     # in one type, x - k P1 - k P2 -> x - k (P1 + P2), which loses it (sin near pi was 15 % off), but not
@@ -69,19 +72,7 @@ def sin_cos(x):
 
 
 @ti.func
-def sin(x):
-    s, _c = sin_cos(x)
-    return s
-
-
-@ti.func
-def cos(x):
-    _s, c = sin_cos(x)
-    return c
-
-
-@ti.func
-def atan2(y, x):
+def _atan2(y, x):
     """The angle of (x, y) in [-pi, pi]; 0 at (0, 0)."""
     ax, ay = ti.abs(x), ti.abs(y)
     mn, mx = ti.min(ax, ay), ti.max(ax, ay)
@@ -110,15 +101,135 @@ def _asin_half(x):
 
 
 @ti.func
-def asin(x):
+def _asin(x):
     p, big = _asin_half(x)
     a = ti.select(big, HALF_PI - 2.0 * p, p)
     return ti.select(x < 0.0, -a, a)
 
 
 @ti.func
-def acos(x):
+def _acos(x):
     p, big = _asin_half(x)
     neg = x < 0.0
     small = HALF_PI - ti.select(neg, -p, p)
     return ti.select(big, ti.select(neg, PI - 2.0 * p, 2.0 * p), small)
+
+
+# ---------------------------------------------------------------------------------------------- the functions
+# On a lane vector each is a call of a real function compiled once per kernel and width (ti.real_func): inlined
+# at every call site, the polynomials tripled the limited lane kernel's cold compile (4 lanes, 30 -> 88 s of
+# CPU); on a scalar the code is inlined.
+
+
+def lanes_of(x) -> int:
+    """The width of a lane vector, 0 for a scalar (at compile time)."""
+    return x.get_shape()[0] if hasattr(x, "is_tensor") and x.is_tensor() else 0
+
+
+@functools.cache
+def _real(L: int):
+    """The real functions for L lanes: (sin_cos, atan2, asin, acos)."""
+    V = ti.types.vector(L, ti.f32)
+    SC = ti.types.struct(s=V, c=V)
+
+    @ti.real_func
+    def sin_cos_l(x: V) -> SC:
+        s, c = _sin_cos(x)
+        return SC(s=s, c=c)
+
+    @ti.real_func
+    def atan2_l(y: V, x: V) -> V:
+        return _atan2(y, x)
+
+    @ti.real_func
+    def asin_l(x: V) -> V:
+        return _asin(x)
+
+    @ti.real_func
+    def acos_l(x: V) -> V:
+        return _acos(x)
+
+    return sin_cos_l, atan2_l, asin_l, acos_l
+
+
+@ti.func
+def sin_cos(x):
+    """(sin x, cos x) from one range reduction."""
+    s, c = x, x
+    if ti.static(lanes_of(x) > 0):
+        r = ti.static(_real(lanes_of(x)))[0](x)
+        s, c = r.s, r.c
+    else:
+        s, c = _sin_cos(x)
+    return s, c
+
+
+@ti.func
+def sin(x):
+    s, _c = sin_cos(x)
+    return s
+
+
+@ti.func
+def cos(x):
+    _s, c = sin_cos(x)
+    return c
+
+
+@ti.func
+def atan2(y, x):
+    """The angle of (x, y) in [-pi, pi]; 0 at (0, 0). y and x both lane vectors or both scalars."""
+    a = x
+    if ti.static(lanes_of(x) > 0):
+        a = ti.static(_real(lanes_of(x)))[1](y, x)
+    else:
+        a = _atan2(y, x)
+    return a
+
+
+@ti.func
+def asin(x):
+    a = x
+    if ti.static(lanes_of(x) > 0):
+        a = ti.static(_real(lanes_of(x)))[2](x)
+    else:
+        a = _asin(x)
+    return a
+
+
+@ti.func
+def acos(x):
+    a = x
+    if ti.static(lanes_of(x) > 0):
+        a = ti.static(_real(lanes_of(x)))[3](x)
+    else:
+        a = _acos(x)
+    return a
+
+
+# ---------------------------------------------------------------------------------------------- lane_math's helpers
+# kernels/lane_math.py's helpers that call trigonometry, with the functions above (the same operations otherwise)
+
+
+@ti.func
+def axis_angle(ax, ay, az, angle):
+    """lane_math.axis_angle: the rotation by angle about a unit axis."""
+    s, c = sin_cos(0.5 * angle)
+    return ax * s, ay * s, az * s, c
+
+
+@ti.func
+def twist_angle(qx, qy, qz, qw, ax, ay, az):
+    """lane_math.twist_angle: the angle of q's twist about a unit axis, in (-pi, pi]."""
+    return lm.wrap_angle(2.0 * atan2(lm.dot3(qx, qy, qz, ax, ay, az), qw))
+
+
+@ti.func
+def best_angle_about(ax, ay, az, ux, uy, uz, vx, vy, vz):
+    """lane_math.best_angle_about: the angle about a unit axis that best turns u toward v."""
+    du = lm.dot3(ux, uy, uz, ax, ay, az)
+    dv = lm.dot3(vx, vy, vz, ax, ay, az)
+    px, py, pz = ux - du * ax, uy - du * ay, uz - du * az
+    rx, ry, rz = vx - dv * ax, vy - dv * ay, vz - dv * az
+    cx, cy, cz = lm.cross(px, py, pz, rx, ry, rz)
+    return atan2(lm.dot3(ax, ay, az, cx, cy, cz), lm.dot3(px, py, pz, rx, ry, rz))

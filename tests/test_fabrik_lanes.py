@@ -23,15 +23,17 @@ def limited_lanes_on(monkeypatch):
 
 
 def _solve_both(monkeypatch, crowd_factory, frames):
-    """Run the frames (targets, max_iterations, tolerance) on two crowds: the lane kernel and the general one."""
+    """Run the frames (targets, max_iterations, tolerance[, poles]) on two crowds: the lane kernel and the general
+    one."""
     orig = adapter._lane_active
     out = []
     for lanes in (True, False):
         monkeypatch.setattr(adapter, "_lane_active", orig if lanes else (lambda crowd, req: None))
         crowd = crowd_factory()
         got = []
-        for targets, iterations, tolerance in frames:
-            rep = crowd.solve(targets, method="fabrik", max_iterations=iterations, tolerance=tolerance)
+        for targets, iterations, tolerance, *poles in frames:
+            rep = crowd.solve(targets, method="fabrik", max_iterations=iterations, tolerance=tolerance,
+                              poles=poles[0] if poles else None)
             got.append((rep, crowd.joint_positions(), crowd.rotations()))
         out.append(got)
     monkeypatch.setattr(adapter, "_lane_active", orig)
@@ -55,17 +57,26 @@ def _check_same(a_frames, b_frames, pose_atol=1e-4, pose_max=5e-3, plateau_swaps
         np.testing.assert_allclose(a.error, b.error, atol=pose_max)
 
 
-def test_limited_humanoid_game_frames_equal_the_per_character_kernel(monkeypatch):
-    """The bench's game cell in small: a cold solve, then warm 4-iteration frames with hands and head moving."""
+@pytest.mark.parametrize("poles", [False, True], ids=["plain", "arm_poles"])
+def test_limited_humanoid_game_frames_equal_the_per_character_kernel(monkeypatch, poles):
+    """The bench's game cell in small: a cold solve, then warm 4-iteration frames with hands and head moving; with
+    the game's elbow poles (game/arm_poles.py) as the game passes them."""
     from crowd_ik.bench import workloads as w
+    from crowd_ik.game.arm_poles import ArmPoles
+    from crowd_ik.game.body import Body
 
     n = 203  # not a multiple of any lane width
     wl = w.game_workload(n)
     assert not wl.rig.constraint_free
     feet = np.array([name.startswith("foot") for name in wl.rig.effector_names])
     offsets = w._smooth_offsets(n, wl.rig.n_effectors, w.SEED + 2)
-    frames = [(wl.targets, 100, wl.tolerance)] + [
-        (wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0)), 4, wl.tolerance) for f in range(3)]
+    extra = ()
+    if poles:
+        crowd = cik.Crowd(wl.rig, n, spacing=w.SPACING)
+        extra = (ArmPoles(Body(wl.rig), n).update(crowd.roots()[0], crowd.roots()[1]).copy(),)
+    frames = [(wl.targets, 100, wl.tolerance, *extra)] + [
+        (wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0)), 4, wl.tolerance, *extra)
+        for f in range(3)]
     a, b = _solve_both(monkeypatch, lambda: cik.Crowd(wl.rig, n, spacing=w.SPACING), frames)
     _check_same(a, b)
     rep = a[0][0]
@@ -137,8 +148,9 @@ def test_limited_lanes_identical_characters_get_identical_poses_in_every_lane():
 
 
 def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
-    """Lanes for plain position targets with one weight pattern for every character; the general kernel for
-    orientation targets, poles or weights that switch an effector off for some characters only."""
+    """Lanes for plain position targets with one weight pattern for every character that weights any, with or
+    without poles; the general kernel for orientation targets or weights that switch an effector off for some
+    characters only."""
     h = cik.Rig.humanoid()
     crowd = cik.Crowd(h, 8)
     targets = crowd.joint_positions()[:, h.arrays["eff_joint"]] + 0.01
@@ -155,6 +167,11 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
         w = np.ones((8, h.n_effectors), np.float32)
         w[:, 0] = 0.0  # the head off for everyone: still lanes, the head's chain inactive
         crowd.solve(targets, method="fabrik", max_iterations=2, weights=w)
+        w[5] = 0.0  # one character weights nothing (a restart window's finished character): still lanes
+        crowd.solve(targets, method="fabrik", max_iterations=2, weights=w)
+        poles = np.full((8, h.n_effectors, 3), np.nan, np.float32)
+        poles[:, 1] = crowd.joint_positions()[:, h.arrays["eff_joint"][1]] + (0.3, -0.3, 0.0)
+        crowd.solve(targets, method="fabrik", max_iterations=2, poles=poles)  # poles: still lanes
         w[3, 1] = 0.0  # one character's hand off as well: a different pattern, the general kernel
         crowd.solve(targets, method="fabrik", max_iterations=2, weights=w)
         orient = np.full((8, h.n_effectors, 3), np.nan, np.float32)
@@ -164,4 +181,5 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
         adapter._lane_active = orig
     assert seen[0] is not None and seen[0].sum() == h.n_joints - 2  # all but the toes, below the ankle effectors
     assert seen[1] is not None and seen[1][h.arrays["eff_joint"][0]] == 0 and seen[1][0] == 1
-    assert seen[2] is None and seen[3] is None
+    assert seen[2] is not None and np.array_equal(seen[2], seen[1]) and seen[3] is not None
+    assert seen[4] is None and seen[5] is None

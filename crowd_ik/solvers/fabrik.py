@@ -2,7 +2,7 @@
 
 A constraint-free rig without orientation targets runs the lane kernels (solvers/fabrik_free.py, kernels/fabrik_lanes.py:
 characters as SIMD lanes, then the rotations recovered in a second pass). With CROWD_IK_LIMITED_LANES=1 a
-joint-limited rig whose characters all weight the same effectors, without orientation, rotation or pole
+joint-limited rig whose characters all weight the same effectors (or none), without orientation or rotation
 targets, runs kernels/fabrik_limited_lanes.py (settings.limited_lanes says why it is off by default);
 everything else, and CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py), which also
 solves full rotation targets (kernels/fabrik_rotation.py).
@@ -34,15 +34,19 @@ def solve(crowd, req) -> None:
 
 def _lane_active(crowd, req):
     """The joints' activity (J,) int32 when the limited lane kernel reproduces this request: CPU lanes switched on
-    (settings.limited_lanes), no orientation, rotation or pole targets, and the same effectors positively weighted for every character (a
-    game's and the bench's requests); else None."""
+    (settings.limited_lanes), no orientation or rotation targets, and the same effectors positively weighted for
+    every character that weights any (a game's and the bench's requests; solvers/fabrik_restart.py's windows,
+    which give the characters that are done zero weights: those do no iterations in either kernel); else None.
+    Poles are fine: solvers/poles.py swivels the limbs after whichever kernel solved."""
     b = crowd.buffers
-    if (settings.limited_lanes() <= 1 or not b.orient_zero or req.poles is not None
-            or getattr(req, "rotations", None) is not None):
+    if settings.limited_lanes() <= 1 or not b.orient_zero or getattr(req, "rotations", None) is not None:
         return None
     on = b.weights > 0.0
-    first = on[0]
-    if not np.array_equal(on, np.broadcast_to(first, on.shape)):
+    rows = on.any(axis=1)
+    if not rows.any():
+        return None
+    first = on[int(np.argmax(rows))]
+    if not np.array_equal(on[rows], np.broadcast_to(first, (int(rows.sum()), on.shape[1]))):
         return None
     return _active_joints(crowd, tuple(bool(x) for x in first))
 
