@@ -78,12 +78,12 @@ def _serve(init_kwargs: dict, inbox, outbox) -> None:
 
 
 def _warm_renderer():
-    """Load (or compile) both variants of the frame kernel on a 16x16 frame, while the main process builds
-    its World: a new camera's frame, then a frame with the same camera."""
+    """Load (or compile) the three variants of the frame kernel on a 16x16 frame, while the main process
+    builds its World: a new camera's frame, then two with the same camera (the first stores its background)."""
     from crowd_ik.view.render import Camera, Renderer
 
     tiny = Renderer(Camera((0.0, 1.0, 3.0), (0.0, 1.0, 0.0), 50.0, 16, 16), 1, 1)
-    for _ in range(2):
+    for _ in range(3):
         tiny.render(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), np.full(1, 0.1, np.float32),
                     np.zeros((1, 3), np.float32))
 
