@@ -368,7 +368,8 @@ def free_recover(L: int, max_joints: int):
                             for e in range(E):
                                 if weights[i, e] > 0.0:
                                     k = eff_joint[e]
-                                    err = ti.max(err, (vec3(fx[s, k][l], fy[s, k][l], fz[s, k][l]) - targets[i, e]).norm())
+                                    d = vec3(fx[s, k][l], fy[s, k][l], fz[s, k][l]) - targets[i, e]
+                                    err = ti.max(err, d.norm())
                             error[i] = err
 
     return recover
