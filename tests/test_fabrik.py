@@ -208,18 +208,18 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
         n = 3 * L + 5
         crowd, targets, weights = _free_case(rig, n)
 
-        def per_character(crowd, max_iterations, tolerance):
+        def per_character(crowd, max_iterations, tolerance, general=None):
             fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd),
                                 crowd.scratch("t_pos", crowd.ti.math.vec3, (n, rig.n_joints)),
                                 crowd.scratch("t_w", crowd.ti.f32, (n, rig.n_joints)), max_iterations, tolerance,
                                 0, 0, *bundles.rotation_goal(crowd), np.full((rig.n_effectors, 2), -1, np.int32),
                                 0.0, 0, *bundles.result(crowd))
 
-        lane_packed = adapter._free
+        lane_packed = adapter.solve_free
         for iterations in (2, 50):
             got = []
             for kernel in (lane_packed, per_character):
-                monkeypatch.setattr(adapter, "_free", kernel)
+                monkeypatch.setattr(adapter, "solve_free", kernel)
                 crowd.set_angles(np.zeros(rig.n_dof))
                 rep = crowd.solve(targets, weights=weights, max_iterations=iterations, tolerance=1e-4)
                 got.append((rep, crowd.joint_positions(), crowd.rotations()))
