@@ -110,8 +110,10 @@ def test_limited_chain_equals_the_per_character_kernel(monkeypatch, limits):
     assert a[0][0].iterations[0] == 0 or np.any(a[0][0].status == Status.UNREACHABLE)
 
 
-def test_limited_lanes_batch_within_float32_rounding_of_one_at_a_time():
-    """A character alone in a padded packet gets what it gets among lane-mates up to float32 rounding."""
+def test_limited_lanes_batch_equals_one_at_a_time():
+    """A character alone in a padded packet gets what it gets among lane-mates, to 1e-5 m (on the AVX-512 machine
+    bit for bit since the hinge and limb trigonometry is lane_trig's element-wise code; with libm's calls up to
+    2.3e-6 m, 21 game characters at 4, 30 and 100 iterations)."""
     from crowd_ik.bench import workloads as w
 
     n = 21
@@ -120,12 +122,12 @@ def test_limited_lanes_batch_within_float32_rounding_of_one_at_a_time():
     batch = crowd.solve(wl.targets, method="fabrik", max_iterations=30, tolerance=wl.tolerance)
     pos = crowd.joint_positions()
     roots, yaw = crowd.roots()
-    for i in (0, 5, 20):
+    for i in range(0, n, 4):
         one = cik.Crowd(wl.rig, n=1)
         one.set_roots(roots[i:i + 1], yaw[i:i + 1])
         rep = one.solve(wl.targets[i:i + 1], method="fabrik", max_iterations=30, tolerance=wl.tolerance)
         assert rep.iterations[0] == batch.iterations[i] and rep.status[0] == batch.status[i]
-        np.testing.assert_allclose(one.joint_positions()[0], pos[i], atol=1e-4)
+        np.testing.assert_allclose(one.joint_positions()[0], pos[i], atol=1e-5)
 
 
 def test_limited_lanes_identical_characters_get_identical_poses_in_every_lane():
