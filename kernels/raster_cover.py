@@ -64,7 +64,8 @@ def capsule_row(a, b, r, cam: ti.template(), py, lo, hi):
     rr = ti.cast(r, F64)
     big = ti.sqrt(a64.dot(a64)) + ti.sqrt(e.dot(e))
     rx = cam64(cam, 3)
-    dd = cam64(cam, 9) * ti.cast(cam[12], F64) - rx * ti.cast(cam[13], F64) - cam64(cam, 6) * (ti.cast(py, F64) - ti.cast(cam[14], F64))
+    dd = (cam64(cam, 9) * ti.cast(cam[12], F64) - rx * ti.cast(cam[13], F64)
+          - cam64(cam, 6) * (ti.cast(py, F64) - ti.cast(cam[14], F64)))
     # Axis line: the distance of the line along d from the line a + s e is |a . (d x e)| / |d x e|.
     m = e.cross(a64)
     f0 = dd.dot(m)
@@ -91,11 +92,13 @@ def half_line(l0, l1, lo, hi):
     """Integer px in [lo, hi] that may satisfy l0 + l1 px >= 0 (float64), widened by one pixel."""
     s0 = lo
     s1 = hi
-    if l1 > 0.0:
-        s0 = ti.max(lo, ti.cast(ti.floor(ti.math.clamp(-l0 / l1, ti.cast(lo - 2, F64), ti.cast(hi + 2, F64))), ti.i32) - 1)
-    elif l1 < 0.0:
-        s1 = ti.min(hi, ti.cast(ti.ceil(ti.math.clamp(-l0 / l1, ti.cast(lo - 2, F64), ti.cast(hi + 2, F64))), ti.i32) + 1)
-    elif l0 < 0.0:
+    if l1 != 0.0:
+        p = ti.math.clamp(-l0 / l1, ti.cast(lo - 2, F64), ti.cast(hi + 2, F64))
+        if l1 > 0.0:
+            s0 = ti.max(lo, ti.cast(ti.floor(p), ti.i32) - 1)
+        else:
+            s1 = ti.min(hi, ti.cast(ti.ceil(p), ti.i32) + 1)
+    elif l0 < 0.0:  # 0 px + l0 >= 0 nowhere
         s0 = hi + 1
     return s0, s1
 
