@@ -1,18 +1,18 @@
 """sin, cos, atan2, asin and acos as polynomials on lane packets: element-wise code without libm calls.
 
 Taichi compiles ``ti.sin`` (and the others) on a ``ti.types.vector(L, ti.f32)`` to one libm call per lane,
-which neither vectorises nor inlines; these are the same functions written with +, *, /, sqrt, floor and
-selects only, so LLVM packs them like the arithmetic around them, and every lane performs the same operations
-whatever its lane-mates hold. Each works on scalars as well as on lane vectors (Taichi instantiates it for
-what it is called with).
+which does not vectorise; these are the same functions written with +, *, /, sqrt, floor and selects only, so
+LLVM packs them like the arithmetic around them, and every lane performs the same operations whatever its
+lane-mates hold. On a lane vector each is a call of a real function compiled once per kernel and width; on a
+scalar it is inlined.
 
 The polynomials are Cephes' single-precision minimax fits (Moshier), the range reductions theirs too:
-- sin, cos: x = k pi/2 + r with k = round(2x/pi), r = (x - k C1) - k C2 (pi/2 = C1 + C2, the first part
+- sin, cos: x = k pi/2 + r with k = round(2x/pi), r = (x - k C1) - k C2 (pi/2 = C1 + C2, the first product
   in float64 and exact), a polynomial for sin or cos of r on [-pi/4, pi/4] chosen and signed by k mod 4.
-  Within 1.5 float32 ulp of the true value on [-4, 4] and 2.3 ulp for |x| <= TRIG_RANGE (tests/test_lane_trig.py:
-  float64 NumPy on dense grids and at the float32 nearest each k pi/2, where the result is tiny) (about 205,000); beyond it
-  the error grows as |x| 2^-53 (k C1 rounds) and the result stays finite and within [-1, 1]. (The kernels'
-  angles are within a few pi.)
+  Within 1.5 float32 ulp of the true value on [-4, 4] and 2.3 ulp for |x| <= TRIG_RANGE (about 205,000)
+  (tests/test_lane_trig.py: float64 NumPy on dense grids and at the float32 nearest each k pi/2, where the
+  result is tiny); beyond it the error grows as |x| 2^-53 (k C1 rounds) and the result stays finite and
+  within [-1, 1]. (The kernels' angles are within a few pi.)
 - atan2(y, x): a = min(|x|, |y|) / max(|x|, |y|) on [0, 1], above tan(pi/8) reduced by atan(a) = pi/4 +
   atan((a - 1) / (a + 1)) (numerator and denominator selected before the one division), an odd polynomial on
   [-tan(pi/8), tan(pi/8)], then the octant. atan2(0, 0) = 0; the sign of a zero is ignored (fast math does
@@ -117,8 +117,8 @@ def _acos(x):
 
 # ---------------------------------------------------------------------------------------------- the functions
 # On a lane vector each is a call of a real function compiled once per kernel and width (ti.real_func): inlined
-# at every call site, the polynomials tripled the limited lane kernel's cold compile (4 lanes, 30 -> 88 s of
-# CPU); on a scalar the code is inlined.
+# at every call site, the polynomials tripled the limited lane kernel's cold compile (4 lanes, every trigonometric
+# call replaced: 30 -> 88 s of CPU; as real functions 46 s); on a scalar the code is inlined.
 
 
 def lanes_of(x) -> int:
