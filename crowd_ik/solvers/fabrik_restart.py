@@ -11,12 +11,13 @@ that is not yet within tolerance either
   joint angles that sit at a limit pulled PULL rad inside it, and from the second restart on a kick of KICK rad
   (a fixed sequence of normal draws, the k-th restart of every character takes the k-th: no character depends on
   another, so a batch solves as its characters one at a time);
-- or jumps, when its last three window ends moved its angles by steps shrinking by a ratio r in JUMP_RATIO: to the
+- or jumps, when its last three windows were slow (each left more than SLOW of the error it started with; only
+  these characters' angles are read) and moved its angles by steps d shrinking by a ratio r in JUMP_RATIO: to the
   limit of that geometric sequence (angles + d r / (1 - r), at most JUMP_FACTOR d), clipped to the limits.
 Characters with a target beyond their reach (Crowd's UNREACHABLE rule) only go on. Every character keeps the pose
-with the lowest error it has had. The report counts every update applied, restarts
-and jumps included, and no character gets more than max_iterations of them (the windows share one clock: a window
-gets min(WINDOW, what is left)); STALLED means the last attempt stopped improving, MAX_ITERATIONS that it was still
+with the lowest error it has had. The report counts every update applied, restarts and jumps included, and no
+character gets more than max_iterations of them (its next window gets min(WINDOW, what it has left); one launch per
+distinct budget, in all but the last rounds one); STALLED means the last attempt stopped improving, MAX_ITERATIONS that it was still
 improving when the clock ran out. Solves of at most WINDOW iterations (the game's warm 4-iteration frames), rigs
 without limits, and solves with orientation or rotation targets are solvers/fabrik.solve unchanged.
 """
@@ -42,6 +43,7 @@ KICK_SEED = 1000  # the k-th restart's kick is np.random.default_rng(KICK_SEED +
 JUMP_RATIO = (0.3, 1.0)  # the shrink ratio of the last two window steps that allows a jump
 JUMP_FACTOR = 9.0  # a jump is at most this many times the last window's step
 JUMP_MIN_STEP = 1e-4  # rad: a last window's step below this makes no jump
+SLOW = 0.5  # a window that leaves more than this fraction of the error is slow: its angles are tracked for jumps
 AT_LIMIT = 1e-3  # rad: an angle this close to a limit sits at it
 
 
@@ -93,6 +95,7 @@ class _Windows:
         self.used = np.zeros(N, np.int32)
         self.last = np.zeros(N, np.int32)  # updates of each character's last window
         self.err = np.zeros(N, np.float32)
+        self.before = np.full(N, np.inf, np.float32)  # the error before each character's last window
         self.stalled = np.zeros(N, bool)
         self.best_err = np.full(N, np.inf, np.float32)  # of the pose saved in rows.saved (inf: none saved)
         self.restarts = np.zeros(N, np.int32)
@@ -118,7 +121,10 @@ class _Windows:
                 act = np.flatnonzero(live & (left > 0) & (~self.stalled | restart))
                 if act.size == 0:
                     break
-                mine = act[reachable[act]]  # the unreachable ones only go on
+                # the unreachable only go on; so do those whose last window cut their error to SLOW of it or less
+                slow = reachable & (restart | (self.err > SLOW * self.before))
+                self.n_hist[act[~slow[act]]] = 0
+                mine = act[slow[act]]
                 moved = self._between(mine, restart[mine]) if mine.size else mine
                 # one launch per distinct budget: all but the last rounds have one, min(WINDOW, left)
                 budget = np.minimum(WINDOW, left[act])
@@ -151,6 +157,7 @@ class _Windows:
         fabrik.solve(self.crowd, replace(self.req, max_iterations=iterations))
         self.last[act] = b.iterations[act]
         self.used[act] += self.last[act]
+        self.before[act] = self.err[act]
         self.err[act] = b.error[act]
         self.stalled[act] = b.stalled[act] != 0
 
