@@ -30,6 +30,9 @@ def run(args) -> int:
         raise ValueError(no_display_message(args.scene))
     arch = runtime.init(arch=args.arch, threads=args.threads)
     sys.stdout.flush()
+    from crowd_ik.view.render import warm_kernels
+
+    warm_kernels()  # before the window opens: its first frames would otherwise wait for the frame kernel
     from crowd_ik.game.world import World
 
     world = World(scene, hud_timings=args.hud_timings, open_ended=True)

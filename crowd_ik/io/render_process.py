@@ -77,24 +77,13 @@ def _serve(init_kwargs: dict, inbox, outbox) -> None:
         outbox.close()
 
 
-def _warm_renderer():
-    """Load (or compile) the three variants of the frame kernel on a 16x16 frame, while the main process
-    builds its World: a new camera's frame, then two with the same camera (the first stores its background)."""
-    from crowd_ik.view.render import Camera, Renderer
-
-    tiny = Renderer(Camera((0.0, 1.0, 3.0), (0.0, 1.0, 0.0), 50.0, 16, 16), 1, 1)
-    for _ in range(3):
-        tiny.render(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), np.full(1, 0.1, np.float32),
-                    np.zeros((1, 3), np.float32))
-
-
 def _draw_loop(init_kwargs: dict, inbox, outbox) -> None:
     try:
         from crowd_ik import runtime
-        from crowd_ik.view.render import Renderer
+        from crowd_ik.view.render import Renderer, warm_kernels
 
         runtime.init(**init_kwargs)
-        _warm_renderer()
+        warm_kernels()  # while the main process builds its World
     except BaseException as exc:  # noqa: BLE001  (reported to the main process)
         outbox.send(("error", -1, type(exc).__name__, _one_line(exc)))
         return

@@ -496,3 +496,13 @@ def draw_hud(frame: np.ndarray, lines) -> None:
     for i, s in enumerate(lines):
         baseline_y = y0 + pad // 2 + line_h * (i + 1) - sizes[i][1]
         cv2.putText(frame, s, (x0 + pad, baseline_y), font, scale, (245, 245, 245), thickness, cv2.LINE_AA)
+
+
+def warm_kernels() -> None:
+    """Load (or compile) the three variants of the frame kernel on a 16x16 frame: a new camera's frame, then two
+    with the same camera (the first stores its background). A window or the drawing process calls it before its
+    first real frame, so that no frame waits for a kernel (a cache load takes a second or more)."""
+    tiny = Renderer(Camera((0.0, 1.0, 3.0), (0.0, 1.0, 0.0), 50.0, 16, 16), 1, 1)
+    for _ in range(3):
+        tiny.render(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32), np.full(1, 0.1, np.float32),
+                    np.zeros((1, 3), np.float32))
