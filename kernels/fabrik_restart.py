@@ -1,6 +1,6 @@
 """Row moves for FABRIK's windowed solve (crowd_ik/solvers/fabrik_restart.py): the joint angles of listed characters
 read, new start angles written (the pose before saved first where asked), and saved poses put back, each followed by
-the characters' forward kinematics as kernels/fk.py's fk_kernel does it. No solver arithmetic: the windows themselves
+the characters' forward kinematics (kernels/fk.py character_fk). No solver arithmetic: the windows themselves
 are launches of kernels/fabrik.py.
 
 The characters are which[:count] of buffers sized for the whole crowd (so that a prepared launch binds the same
@@ -10,25 +10,10 @@ launching thread.
 
 import taichi as ti
 
-from crowd_ik.kernels.fk import joint_fk_local
-from crowd_ik.kernels.local_arrays import get3, get4, put
-from crowd_ik.kernels.quat import joint_angles, joint_quat, qmul, yaw_quat, vec3, vec4
+from crowd_ik.kernels.fk import character_fk
+from crowd_ik.kernels.quat import joint_angles, joint_quat, vec3, vec4
 
 ndarray = ti.types.ndarray
-
-
-@ti.func
-def character_fk(i, parent: ti.template(), offset: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
-                 local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), n_joints: ti.template()):
-    """Character i's world pose from its root and local rotations: the body of kernels/fk.py's fk_kernel."""
-    pos = ti.Matrix.zero(ti.f32, n_joints, 3)
-    rot = ti.Matrix.zero(ti.f32, n_joints, 4)
-    q_root = yaw_quat(root_yaw[i])
-    for j in range(n_joints):
-        put(rot, j, qmul(joint_fk_local(j, parent[j], q_root, offset, rot, pos), local_rot[i, j]))
-    for j in range(n_joints):
-        world_pos[i, j] = root_pos[i] + get3(pos, j)
-        world_rot[i, j] = get4(rot, j)
 
 
 @ti.kernel

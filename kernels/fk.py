@@ -25,6 +25,21 @@ def joint_fk_local(j, p, base_root, offset: ti.template(), rot: ti.template(), p
     return base_rot
 
 
+@ti.func
+def character_fk(i, parent: ti.template(), offset: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
+                 local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), n_joints: ti.template()):
+    """Character i's world pose from its root and local rotations: fk_kernel's body (FABRIK's restarts use it too)."""
+    pos = ti.Matrix.zero(ti.f32, n_joints, 3)
+    rot = ti.Matrix.zero(ti.f32, n_joints, 4)
+    q_root = yaw_quat(root_yaw[i])
+    for j in range(n_joints):
+        put(rot, j, qmul(joint_fk_local(j, parent[j], q_root, offset, rot, pos), local_rot[i, j]))
+    for j in range(n_joints):
+        world_pos[i, j] = root_pos[i] + get3(pos, j)
+        world_rot[i, j] = get4(rot, j)
+
+
+
 def forward_kinematics(parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, which, n_joints: int):
     """world_pos, world_rot of the characters `which` (K,) from their roots and local_rot (fk_kernel), on the
     launching thread when K characters are few (kernels/serial_loops.py)."""
@@ -55,15 +70,7 @@ def fk_kernel(
     """
     ti.loop_config(serialize=serial)
     for k in range(which.shape[0]):
-        i = which[k]
-        pos = ti.Matrix.zero(ti.f32, n_joints, 3)
-        rot = ti.Matrix.zero(ti.f32, n_joints, 4)
-        q_root = yaw_quat(root_yaw[i])
-        for j in range(n_joints):
-            put(rot, j, qmul(joint_fk_local(j, parent[j], q_root, offset, rot, pos), local_rot[i, j]))
-        for j in range(n_joints):
-            world_pos[i, j] = root_pos[i] + get3(pos, j)
-            world_rot[i, j] = get4(rot, j)
+        character_fk(which[k], parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, n_joints)
 
 
 @ti.kernel
