@@ -120,17 +120,21 @@ def lanes() -> int:
     return _LANES.get("L") or choose_lanes("cpu")
 
 
-LIMITED_LANES_MAX = 4  # kernels/fabrik_limited_lanes.py's width at most: its IR, and compile time, grow with the width
-# (humanoid, loaded 2-core machine: 23 s at 4 lanes, 45 s at 8, 111 s at 16), and its time goes to scalar
-# sin, cos and atan2 calls that wider lanes do not speed up (10,000 warm humanoids: 8 lanes no faster than 4)
+LIMITED_LANES_MAX = 8  # kernels/fabrik_limited_lanes.py's width at most: its IR, and compile time, grow with the width
+# (Taichi scalarises lane vectors; humanoid, cold, 2-core machine: 4 lanes 26-37 s of CPU, 8 lanes 40 s, 16 lanes
+# 140 s). With the limb trigonometry element-wise (kernels/lane_trig.py) 8 lanes pay: warm 10,000-humanoid game
+# solve 66.0 -> 37.5 ms against libm's calls at 8 lanes (which ran no faster than 4)
 
 
 def limited_lanes() -> int:
     """The lane width of the joint-limited FABRIK lanes: lanes(), at most LIMITED_LANES_MAX; 0 (the general
-    kernel) unless CROWD_IK_LIMITED_LANES=1. Off by default: its cold compile (23 s at 4 lanes) is over the
-    bench's 20 s per kernel, and until commit f840326 LLVM compiled the lanes of one packet differently under
-    fast math, so a character's float32 rounding depended on its lane (since then identical characters agree
-    bit for bit in every lane: tests/test_fabrik_lanes.py, no longer an xfail; not proven for every input)."""
+    kernel) unless CROWD_IK_LIMITED_LANES=1. Off by default, for two reasons measured on the bench's game
+    workload: against the one-character kernel, 10,000 humanoids, a cold 100-iteration solve gives the same
+    status for all but the same iteration count for only 98.7 % (issue 13 asks 99 %) and poses within 1e-4 m
+    for 93 % (after 23 warm 4-iteration frames 64 %, p99 1.6 mm: float32 rounding in another order grows on
+    limits and nearly straight limbs); and its cold compile (40 s of CPU at 8 lanes) is over the bench's 20 s
+    per kernel. Batch == one at a time holds bit for bit since the limb trigonometry is element-wise
+    (kernels/lane_trig.py), and identical characters agree in every lane (tests/test_fabrik_lanes.py)."""
     if os.environ.get("CROWD_IK_LIMITED_LANES", "0") != "1":
         return 0
     return min(lanes(), LIMITED_LANES_MAX)
