@@ -10,8 +10,8 @@ launching thread.
 
 import taichi as ti
 
-from crowd_ik.kernels.fk import character_fk
-from crowd_ik.kernels.quat import joint_angles, joint_quat, vec3, vec4
+from crowd_ik.kernels.fk import character_fk, put_row_angles, row_joint_quat
+from crowd_ik.kernels.quat import vec3, vec4
 
 ndarray = ti.types.ndarray
 
@@ -31,10 +31,7 @@ def read_angles(
     rotations_to_angles: ball joints intrinsic XYZ Euler)."""
     ti.loop_config(serialize=serial)
     for k, j in ti.ndrange(count, rotations.shape[1]):
-        kd = kind[j]
-        a = joint_angles(kd, axes[j, 0], axes[j, 1], rotations[which[k], j])
-        for d in range(kd):
-            angles[k, dof_start[j] + d] = a[d]
+        put_row_angles(kind, axes, dof_start, rotations[which[k], j], angles, k, j)
 
 
 @ti.kernel
@@ -65,17 +62,8 @@ def write_starts(
         for j in range(n_joints):
             if save[k] == 1:
                 saved[i, j] = local_rot[i, j]
-            kd = kind[j]
-            if kd > 0:
-                s = dof_start[j]
-                a0 = angles[k, s]
-                a1 = 0.0
-                a2 = 0.0
-                if kd >= 2:
-                    a1 = angles[k, s + 1]
-                if kd >= 3:
-                    a2 = angles[k, s + 2]
-                local_rot[i, j] = joint_quat(kd, axes[j, 0], axes[j, 1], a0, a1, a2)
+            if kind[j] > 0:
+                local_rot[i, j] = row_joint_quat(kind, axes, dof_start, angles, k, j)
         character_fk(i, parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, n_joints)
 
 

@@ -73,6 +73,33 @@ def fk_kernel(
         character_fk(which[k], parent, offset, root_pos, root_yaw, local_rot, world_pos, world_rot, n_joints)
 
 
+@ti.func
+def row_joint_quat(kind: ti.template(), axes: ti.template(), dof_start: ti.template(), angles: ti.template(), row, j):
+    """Joint j's local rotation from its angles in angles[row] (D,) radians (ball joints: intrinsic XYZ Euler)."""
+    k = kind[j]
+    s = dof_start[j]
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    if k >= 1:
+        a0 = angles[row, s]
+    if k >= 2:
+        a1 = angles[row, s + 1]
+    if k >= 3:
+        a2 = angles[row, s + 2]
+    return joint_quat(k, axes[j, 0], axes[j, 1], a0, a1, a2)
+
+
+@ti.func
+def put_row_angles(kind: ti.template(), axes: ti.template(), dof_start: ti.template(), q, angles: ti.template(), row,
+                   j):
+    """Joint j's angles of local rotation q into angles[row] (D,) radians."""
+    k = kind[j]
+    a = joint_angles(k, axes[j, 0], axes[j, 1], q)
+    for d in range(k):
+        angles[row, dof_start[j] + d] = a[d]
+
+
 @ti.kernel
 def angles_to_rotations(
     kind: ndarray(dtype=ti.i32, ndim=1),
@@ -83,18 +110,7 @@ def angles_to_rotations(
 ):
     """local_rot (N, J, 4) from angles (N, D) radians (ball joints: intrinsic XYZ Euler)."""
     for i, j in ti.ndrange(local_rot.shape[0], local_rot.shape[1]):
-        k = kind[j]
-        s = dof_start[j]
-        a0 = 0.0
-        a1 = 0.0
-        a2 = 0.0
-        if k >= 1:
-            a0 = angles[i, s]
-        if k >= 2:
-            a1 = angles[i, s + 1]
-        if k >= 3:
-            a2 = angles[i, s + 2]
-        local_rot[i, j] = joint_quat(k, axes[j, 0], axes[j, 1], a0, a1, a2)
+        local_rot[i, j] = row_joint_quat(kind, axes, dof_start, angles, i, j)
 
 
 @ti.kernel
@@ -107,8 +123,4 @@ def rotations_to_angles(
 ):
     """angles (N, D) radians from local_rot (N, J, 4)."""
     for i, j in ti.ndrange(local_rot.shape[0], local_rot.shape[1]):
-        k = kind[j]
-        s = dof_start[j]
-        a = joint_angles(k, axes[j, 0], axes[j, 1], local_rot[i, j])
-        for d in range(k):
-            angles[i, s + d] = a[d]
+        put_row_angles(kind, axes, dof_start, local_rot[i, j], angles, i, j)
