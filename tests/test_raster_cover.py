@@ -67,17 +67,7 @@ def _box_keys(cam: nd(dtype=ti.f32, ndim=1), pa: nd(dtype=ti.f32, ndim=2), pb: n
         zb = b.dot(fwd)
         r = effective_radius(za, zb, radius[i], focal)
         if ti.max(za, zb) + r >= near:
-            xr = ti.Vector([0, width - 1])
-            yr = ti.Vector([0, height - 1])
-            if ti.min(za, zb) - r > near:
-                bxa = sphere_bounds(a.dot(right), za, r)
-                bxb = sphere_bounds(b.dot(right), zb, r)
-                bya = sphere_bounds(a.dot(up), za, r)
-                byb = sphere_bounds(b.dot(up), zb, r)
-                cx = cam[13]
-                cy = cam[14]
-                xr = pixel_range(cx + focal * ti.min(bxa[0], bxb[0]), cx + focal * ti.max(bxa[1], bxb[1]), width)
-                yr = pixel_range(cy - focal * ti.max(bya[1], byb[1]), cy - focal * ti.min(bya[0], byb[0]), height)
+            xr, yr = _box(cam, a, b, r, width, height)
             d0 = dir_origin(cam)
             for py in range(yr[0], yr[1] + 1):
                 for px in range(xr[0], xr[1] + 1):
