@@ -20,24 +20,24 @@ def make_runner():
 
     V = ti.types.vector(L, ti.f32)
 
+    @ti.func
+    def every_function(x, y, out: ti.template(), i):
+        s, c = lt.sin_cos(x)
+        out[i, 0], out[i, 1] = s, c
+        out[i, 2], out[i, 3] = lt.sin(x), lt.cos(x)
+        out[i, 4], out[i, 5] = lt.asin(x), lt.acos(x)
+        out[i, 6] = lt.atan2(y, x)
+
     @ti.kernel
     def lanes(x: ti.types.ndarray(dtype=V, ndim=1), y: ti.types.ndarray(dtype=V, ndim=1),
               out: ti.types.ndarray(dtype=V, ndim=2)):
         for i in range(x.shape[0]):
-            s, c = lt.sin_cos(x[i])
-            out[i, 0], out[i, 1] = s, c
-            out[i, 2], out[i, 3] = lt.sin(x[i]), lt.cos(x[i])
-            out[i, 4], out[i, 5] = lt.asin(x[i]), lt.acos(x[i])
-            out[i, 6] = lt.atan2(y[i], x[i])
+            every_function(x[i], y[i], out, i)
 
     @ti.kernel
     def scalars(x: ti.types.ndarray(ndim=1), y: ti.types.ndarray(ndim=1), out: ti.types.ndarray(ndim=2)):
         for i in range(x.shape[0]):
-            s, c = lt.sin_cos(x[i])
-            out[i, 0], out[i, 1] = s, c
-            out[i, 2], out[i, 3] = lt.sin(x[i]), lt.cos(x[i])
-            out[i, 4], out[i, 5] = lt.asin(x[i]), lt.acos(x[i])
-            out[i, 6] = lt.atan2(y[i], x[i])
+            every_function(x[i], y[i], out, i)
 
     names = ("sin_cos.sin", "sin_cos.cos", "sin", "cos", "asin", "acos", "atan2")
 
