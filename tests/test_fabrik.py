@@ -208,7 +208,7 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
         n = 3 * L + 5
         crowd, targets, weights = _free_case(rig, n)
 
-        def per_character(crowd, max_iterations, tolerance, general=None):
+        def per_character(crowd, max_iterations, tolerance):
             fabrik.fabrik_solve(*bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd),
                                 crowd.scratch("t_pos", crowd.ti.math.vec3, (n, rig.n_joints)),
                                 crowd.scratch("t_w", crowd.ti.f32, (n, rig.n_joints)), max_iterations, tolerance,

@@ -23,7 +23,10 @@ def solve(crowd, req) -> None:
         _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1, req=req)
         return
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
-        solve_free(crowd, req.max_iterations, req.tolerance, _general)
+        if settings.lanes() == 1:  # CUDA: one character per GPU thread, the rotations recovered once
+            _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=0)
+        else:
+            solve_free(crowd, req.max_iterations, req.tolerance)
         return
     active = _lane_active(crowd, req)
     if active is not None:
@@ -39,7 +42,7 @@ def _lane_active(crowd, req):
     which give the characters that are done zero weights: those do no iterations in either kernel); else None.
     Poles are fine: solvers/poles.py swivels the limbs after whichever kernel solved."""
     b = crowd.buffers
-    if settings.limited_lanes() <= 1 or not b.orient_zero or getattr(req, "rotations", None) is not None:
+    if settings.limited_lanes() <= 1 or not b.orient_zero or req.rotations is not None:
         return None
     on = b.weights > 0.0
     rows = on.any(axis=1)

@@ -7,16 +7,13 @@ from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 
 
-def solve_free(crowd, max_iterations: int, tolerance: float, general) -> None:
-    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations;
-    on CUDA (one lane) `general` (solvers/fabrik._general), with the rotations recovered once."""
+def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
+    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations
+    (CPU lanes only: solvers/fabrik.solve sends one lane, CUDA, to the general kernel)."""
     from crowd_ik.kernels import fabrik_lanes, lane_plan
 
     ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
     J, E = crowd.rig.n_joints, crowd.rig.n_effectors
-    if L == 1:  # CUDA: one character per GPU thread, the general kernel with the rotations recovered once
-        general(crowd, max_iterations, tolerance, recover_each_iteration=0)
-        return
     LP = lane_plan.pass_lanes(L)
     P = lane_plan.packets(crowd.n, L)
     V = ti.types.vector(L, ti.f32)
