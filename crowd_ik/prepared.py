@@ -5,8 +5,8 @@ Taichi 1.7 spends ~5-10 us of Python per array argument on every launch (the tem
 the launch context), which for the game's 10-40-argument kernels is most of a small step's launch. `prepared(k)`
 (one per kernel) is called like the kernel `k`. It keeps the last few launch contexts keyed by the identity of the
 call's array arguments (ti.ndarrays and C-contiguous NumPy arrays) and its template values; the arrays are weakly
-referenced, and a context whose arrays died is dropped, so an array born at a reused id never meets it and none
-is kept alive. On a match it sets the arrays (one C++ call each: a launch overwrites an ndarray's slot with its
+referenced, and a context is dropped as soon as one of its arrays dies (the weak reference's callback), so an
+array born at a reused id never meets it and none is kept alive. On a match it sets the arrays (one C++ call each: a launch overwrites an ndarray's slot with its
 raw pointer) and the scalars, and launches the compiled kernel. A first call, other arrays and anything it does
 not handle (a return value, unsigned or vector scalars, a Fortran-ordered array, a gradient) go through the
 ordinary call, which also compiles and checks; arrays are bound the second time they are seen together, so
@@ -16,6 +16,7 @@ prepared launch runs the same compiled kernel on the same memory, so results are
 
 from __future__ import annotations
 
+import operator
 import weakref
 from collections import OrderedDict
 
@@ -53,18 +54,21 @@ class Prepared:
             self._slots.append((kind, index))
             index += 1
         self._plain = primal.return_type is not None or any(kind is None for kind, _ in self._slots)
+        # the key of a call: the ids of its arrays, then its template values (both picked by one C call)
+        arrays = [p for p, (kind, _) in enumerate(self._slots) if kind == "array"]
+        templates = [p for p, (kind, _) in enumerate(self._slots) if kind == "template"]
+        self._arrays = _picker(arrays)
+        self._templates = _picker(templates)
+        self._floats = [(p, (i,)) for p, (kind, i) in enumerate(self._slots) if kind == "float"]
+        self._ints = [(p, (i,)) for p, (kind, i) in enumerate(self._slots) if kind == "int"]
         self._contexts = OrderedDict()  # key -> (context, compiled kernel, program, weak refs, ndarrays, externals)
         self._seen = OrderedDict()  # keys launched once the ordinary way
 
     def __call__(self, *args):
         if self._plain or len(args) != len(self._slots):
             return self.kernel(*args)
-        key = tuple(id(a) if kind == "array" else a for (kind, _), a in zip(self._slots, args)
-                    if kind == "array" or kind == "template")
+        key = (*map(id, self._arrays(args)), *self._templates(args))
         entry = self._contexts.get(key)
-        if entry is not None and any(ref() is None for ref in entry[3]):  # an array died: its id may be reused
-            del self._contexts[key]
-            entry = None
         if entry is None:
             self.kernel(*args)  # compiles, checks the arguments and launches
             if key in self._seen:
@@ -80,13 +84,17 @@ class Prepared:
             ctx.set_arg_ndarray(i, arr)
         for i, ptr, nbytes, shape in externals:
             ctx.set_arg_external_array_with_shape(i, ptr, nbytes, shape, 0)
-        for (kind, i), a in zip(self._slots, args):
-            if kind == "float":
-                ctx.set_arg_float((i,), float(a))
-            elif kind == "int":
-                ctx.set_arg_int((i,), int(a))
+        for p, i in self._floats:
+            ctx.set_arg_float(i, float(args[p]))
+        for p, i in self._ints:
+            ctx.set_arg_int(i, int(args[p]))
         prog.launch_kernel(data, ctx)
         return None
+
+    def _forget(self, key) -> None:
+        """An array of context `key` died (a weak reference's callback): its id may be reused, drop the context."""
+        self._contexts.pop(key, None)
+        self._seen.pop(key, None)
 
     def _bind(self, key, args) -> None:
         """A launch context for these arrays (the ordinary call has just compiled and checked them)."""
@@ -107,7 +115,7 @@ class Prepared:
                 externals.append(((i,), int(a.ctypes.data), a.nbytes, tuple(a.shape[:a.ndim - element_dim])))
             else:
                 return  # stays ordinary
-            refs.append(weakref.ref(a))
+            refs.append(weakref.ref(a, lambda _ref, key=key: self._forget(key)))
         instance, _ = primal.mapper.lookup(args)
         t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
         prog = impl.get_runtime().prog
@@ -115,6 +123,16 @@ class Prepared:
         self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
         while len(self._contexts) > CONTEXTS:
             self._contexts.popitem(last=False)
+
+
+def _picker(positions: list):
+    """A function args -> the tuple of args at `positions` (operator.itemgetter, which gives a bare item for one)."""
+    if not positions:
+        return lambda args: ()
+    if len(positions) == 1:
+        p = positions[0]
+        return lambda args: (args[p],)
+    return operator.itemgetter(*positions)
 
 
 _PREPARED: dict = {}
