@@ -301,6 +301,13 @@ class Crowd:
                             rest_weight, velocity_weight, damping, joint_weights, balance_weight, poles,
                             rotation_tolerance=rotation_tolerance, rotations=rotations,
                             rotation_weights=rotation_weights, root_weight=root_weight)
+        return self.solve_request(req)
+
+    def solve_request(self, req: SolveRequest, report: bool = True) -> SolveReport | None:
+        """`solve` of a SolveRequest that solvers.request.check_request made for this crowd (solve's arguments,
+        checked), perhaps refilled in place since (solvers.request.refill): nothing is checked again. For callers
+        that solve the same kind of request every step (the game). report=False skips the report (its rotation
+        errors read the pose back) and returns None."""
         if req.poles is not None and self.dim == 2:
             raise ValueError("poles: a planar (dim=2) rig bends in its plane; poles need a 3D rig")
         self.buffers.load(req)
@@ -311,7 +318,7 @@ class Crowd:
             self._roots_moved()
         if req.poles is not None:
             pole_hints.apply(self, req)
-        return self._report(req)
+        return self._report(req) if report else None
 
     def _shift_roots(self, req: SolveRequest) -> None:
         """FABRIK's and CCD's free root: kernels/root_shift.py moves root_pos, then FK follows."""

@@ -28,6 +28,7 @@ from crowd_ik.game.crowd_motion import CrowdMotion
 from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import character_layout
 from crowd_ik.game.limbs import Limbs
+from crowd_ik.game.solving import StepSolve
 from crowd_ik.geometry.vectors import UP, normalize
 from crowd_ik.kernels.serial_loops import BOX, serial_for
 from crowd_ik.prepared import prepared
@@ -141,6 +142,7 @@ class Characters:
         self._hand_rows = as_slice(self._hand_eff)
         self._planted_rows = as_slice(np.flatnonzero(b.planted))
         self.arm_poles = ArmPoles(b, N) if b.humanoid else None  # elbows out and down (no knee poles: gait.plant)
+        self._solve = StepSolve(self.crowd, scene.solver, self._orient)  # the crowd's solve, checked once
 
     def walk(self, dt: float, obstacles: np.ndarray) -> None:
         """Move the standing bystanders' pelvises (obstacles (K, 2): the player's and the standing shooters'
@@ -252,11 +254,8 @@ class Characters:
         weights = self._weights * self.alive[:, None]
         t0 = time.perf_counter()
         self.crowd.set_roots(roots, self.yaw)
-        sv = self.scene.solver
         poles = None if self.arm_poles is None else self.arm_poles.update(roots, self.yaw, self.alive)
-        self.last_report = self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations,
-                                            tolerance=sv.tolerance, weights=weights, orientations=self._orient,
-                                            poles=poles)
+        self.last_report = self._solve(targets, weights, poles)
         if self.gait is not None:
             self.gait.plant(self.crowd, self.planted, self.yaw, self.alive)
         ms = 1e3 * (time.perf_counter() - t0)

@@ -21,6 +21,7 @@ from crowd_ik.game.body import Body
 from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import shooter_layout
 from crowd_ik.game.player import ARM_REACH, MUZZLE, export_joints
+from crowd_ik.game.solving import StepSolve
 from crowd_ik.geometry.vectors import normalize
 
 TAU_AIM = 0.12  # s: the aim follows a new target with this time constant
@@ -53,6 +54,7 @@ class Shooters:
         self.shots_fired = np.zeros(S, np.int64)
         self.alive = np.ones(S, bool)  # False once a player's bullet has downed the shooter
         self._weights = np.ones((S, hb.rig.n_effectors), np.float32)  # zero rows for downed shooters
+        self._solve = StepSolve(self.crowd, scene.solver, self._orient)
         self.k = np.arange(S)
         period = 1.0 / scene.shooters.fire_rate
         self.next_fire = (period * (FIRST_SHOT[0] + (FIRST_SHOT[1] - FIRST_SHOT[0])
@@ -144,10 +146,8 @@ class Shooters:
         targets[:, 2] = shoulder + self.aim * ARM_REACH * hb.scale
         t0 = time.perf_counter()
         self.crowd.set_roots(self.roots, self.yaw)
-        sv = self.scene.solver
-        self.crowd.solve(targets, method=sv.method, max_iterations=sv.iterations, tolerance=sv.tolerance,
-                         weights=self._weights, orientations=self._orient,
-                         poles=self.arm_poles.update(self.roots, self.yaw, up))
+        # the report is not used: skipped (its rotation errors would read the pose back)
+        self._solve(targets, self._weights, self.arm_poles.update(self.roots, self.yaw, up), report=False)
         self.gait.plant(self.crowd, feet, self.yaw, up)
         self.joints = export_joints(self.crowd, self._joints_out)
         return 1e3 * (time.perf_counter() - t0)

@@ -147,3 +147,24 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
             req.rotations = np.where(has[..., None], rot / np.maximum(norms, 1e-30)[..., None], 0.0).astype(np.float32)
             req.rotation_weights = rw
     return req
+
+
+def refill(req: SolveRequest, targets: np.ndarray, weights: np.ndarray, poles: np.ndarray | None = None) -> bool:
+    """Put a new solve's targets (N, E, dim), weights (N, E) and poles (N, E, dim) (NaN rows: none) into `req`, in
+    place and unchecked. `req` is a request check_request made from arrays of the same shapes and kinds, holding
+    writable arrays of its own (check_request may hand back read-only views of the caller's arrays). For callers
+    that build these arrays themselves (the game, every world step): finite and in range by construction, whole
+    NaN rows only, some weight > 0. The values land as check_request would leave them (float32 as given; poles
+    NaN where none), so a solve of the refilled request equals one of check_request(...). Returns False, leaving
+    `req` alone, when the request's form would change (poles given or not, none at all, another shape): the
+    caller then checks the new arguments the ordinary way."""
+    want = req.poles is not None
+    if (poles is not None) != want or np.shape(targets) != req.targets.shape or np.shape(weights) != req.weights.shape:
+        return False
+    if want and (np.shape(poles) != req.poles.shape or np.isnan(poles[..., 0]).all()):
+        return False
+    np.copyto(req.targets, targets, casting="same_kind")
+    np.copyto(req.weights, weights, casting="same_kind")
+    if want:
+        np.copyto(req.poles, poles, casting="same_kind")
+    return True
