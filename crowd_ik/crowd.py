@@ -18,7 +18,7 @@ from crowd_ik.prepared import prepared
 from crowd_ik.rig import MAX_EXTENT, Rig
 from crowd_ik.solvers import ccd, dls, fabrik_restart, poles as pole_hints
 from crowd_ik.solvers.bundles import SolveBuffers
-from crowd_ik.solvers.errors import rotation_error
+from crowd_ik.solvers.errors import effector_rotation_error, measured
 from crowd_ik.solvers.registry import CCD, DEFAULT as DEFAULT_METHOD, DLS, FABRIK, METHODS
 from crowd_ik.solvers.request import SolveRequest, check_request
 
@@ -118,7 +118,6 @@ class Crowd:
         self._every = np.arange(N, dtype=np.int32)
         self._roots_host = self._yaw_host = None  # the roots as last set (set_roots redoes FK of the moved ones)
         self._base = np.zeros((N, 3), np.float32)  # the root joints' world positions (_set_base)
-        self._world_rot_host = None  # (N, J, 4) float32: world_rot read back for a report's rotation errors
         self.set_roots(grid_positions(N, float(spacing), self.dim))
         self.set_angles(np.zeros(D, np.float32))
 
@@ -333,22 +332,29 @@ class Crowd:
         self._roots_moved()
         self._fk()
 
-    def _read_world_rot(self) -> np.ndarray:
-        """world_rot copied into a kept host buffer (what to_numpy() gives, by a prepared launch of the kernel
-        to_numpy runs: no new array and no per-argument Python work per report)."""
-        from taichi._kernels import ndarray_matrix_to_ext_arr
+    def _effector_rotations(self, cols: np.ndarray) -> np.ndarray:
+        """(N, K, 4) float32: world_rot of the effectors cols (K,) read back into a kept host buffer (one launch
+        of kernels/report_rows.py; for a small crowd on the launching thread)."""
+        from crowd_ik.kernels import report_rows
+        from crowd_ik.kernels.serial_loops import JOINT, serial_for
 
-        if self._world_rot_host is None:
-            self._world_rot_host = np.zeros((self.n, self.rig.n_joints, 4), np.float32)
-        prepared(ndarray_matrix_to_ext_arr)(self.world_rot, self._world_rot_host, 1, 1)
-        return self._world_rot_host
+        kept = self.__dict__.setdefault("_report_rows", {})
+        key = cols.tobytes()
+        rows = kept.get(key)
+        if rows is None:  # per set of effectors (a game asks for the same one every step)
+            joints = np.ascontiguousarray(self.rig.arrays["eff_joint"][cols], np.int32)
+            rows = kept[key] = (joints, np.zeros((self.n, len(cols), 4), np.float32))
+        joints, out = rows
+        prepared(report_rows.joint_rotations)(self.world_rot, joints, out, serial_for(out.size // 4, JOINT))
+        return out
 
     def _report(self, req: SolveRequest) -> SolveReport:
         b = self.buffers
         error, iters = b.error.copy(), b.iterations.copy()
         status = np.full(self.n, Status.CONVERGED, np.int8)
         if req.orientations is not None or req.rotations is not None:
-            turn = rotation_error(self.rig, self._read_world_rot(), req)
+            cols = np.flatnonzero(measured(req))
+            turn = effector_rotation_error(self.rig, self._effector_rotations(cols), req, cols)
             left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         else:
             turn = np.zeros(self.n, np.float32)

@@ -1,7 +1,7 @@
 """Crowd.solve's host-side shortcuts give what the plain way gives: prepared launches (crowd_ik/prepared.py) equal
 ordinary ones solve after solve, the DLS settings kept between solves follow every change of damping, joint
-weights and solver variant, and the report's rotation errors (world_rot read back into a kept buffer, the cross
-products written out) equal the np.cross formula on Crowd.world_rotations()."""
+weights and solver variant, and the report's rotation errors (the measured effectors' world rotations read back
+by one kernel, the cross products written out) equal the np.cross formula on Crowd.world_rotations()."""
 
 import numpy as np
 import pytest
