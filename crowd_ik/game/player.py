@@ -16,6 +16,7 @@ from crowd_ik.game.aim import ballistic_direction
 from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
 from crowd_ik.game.gait import leg_joints, plant_legs
+from crowd_ik.game.solving import StepSolve
 from crowd_ik.geometry.vectors import yaw_rotate
 from crowd_ik.kernels.serial_loops import BOX, serial_for
 from crowd_ik.prepared import prepared
@@ -231,6 +232,8 @@ class Player:
         self._joints_out = np.zeros((1, body.rig.n_joints, 3), np.float32)  # export_joints' kept host buffer
         self._legs = leg_joints(body.rig)
         self._arm_poles = ArmPoles(body, 1)  # elbows out and down (knees: plant_legs)
+        self._solve = StepSolve(self.crowd, self.solver, self._orient)  # the walking solve, checked once
+        self._weights = np.ones((1, body.rig.n_effectors), np.float32)
 
     def update(self, dt: float) -> None:
         """Walk dt seconds of real time (dt = 0: stand where the walker is) and solve the pose."""
@@ -246,9 +249,12 @@ class Player:
         root1, yaw1 = np.asarray(root, np.float32)[None], np.array([yaw], np.float32)
         self.crowd.set_roots(root1, yaw1)
         sv = self.solver
-        iterations = sv.iterations if dt > 0.0 else max(sv.iterations, 50)
-        self.crowd.solve(targets[None], method=sv.method, max_iterations=iterations, tolerance=sv.tolerance,
-                         orientations=self._orient, poles=self._arm_poles.update(root1, yaw1))
+        poles = self._arm_poles.update(root1, yaw1)
+        if dt > 0.0:  # the report is not used: skipped
+            self._solve(np.asarray(targets, np.float32)[None], self._weights, poles, report=False)
+        else:  # standing (the first pose): more iterations
+            self.crowd.solve(targets[None], method=sv.method, max_iterations=max(sv.iterations, 50),
+                             tolerance=sv.tolerance, orientations=self._orient, poles=poles)
         # the feet exactly on the walker's footprints (game.gait): planted feet do not slide
         plant_legs(self.crowd, self._legs, targets[None, b.planted], yaw1, np.ones(1, np.int32))
         self.joints = export_joints(self.crowd, self._joints_out)[0]
