@@ -24,6 +24,7 @@ import numpy as np
 from crowd_ik.game import streams
 from crowd_ik.game.arm_poles import ArmPoles
 from crowd_ik.game.body import Body
+from crowd_ik.game.cross import cross
 from crowd_ik.game.crowd_motion import CrowdMotion
 from crowd_ik.game.gait import Gait
 from crowd_ik.game.layout import character_layout
@@ -212,7 +213,7 @@ class Characters:
         if i.size:
             d = thr.direction[i]
             m = self.ref_points[i] - thr.point[i]  # from the bullet's closest point to the chest
-            side = normalize(np.cross(UP, d) * [1.0, 0.0, 1.0], fallback=(1.0, 0.0, 0.0))
+            side = normalize(cross(UP, d) * [1.0, 0.0, 1.0], fallback=(1.0, 0.0, 0.0))
             along = np.einsum("ij,ij->i", m, side)
             coin = streams.rand(self.seed, streams.SIDE, i, bullets.serial[thr.bullet[i]]) < 0.5
             sign = np.where(np.abs(along) > 0.02 * scale, np.sign(along), np.where(coin, 1.0, -1.0))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.game import streams
+from crowd_ik.game.cross import cross
 from crowd_ik.geometry.vectors import UP, normalize
 
 SHARD_PIECES = 2
@@ -99,7 +100,7 @@ class Shards:
         ang = np.linalg.norm(w, axis=1) * dt
         k = normalize(w)
         cos, sin = np.cos(ang)[:, None], np.sin(ang)[:, None]
-        h = h * cos + np.cross(k, h) * sin + k * np.einsum("ij,ij->i", k, h)[:, None] * (1.0 - cos)
+        h = h * cos + cross(k, h) * sin + k * np.einsum("ij,ij->i", k, h)[:, None] * (1.0 - cos)
         low = c[:, 1] - np.abs(h[:, 1]) - self.r[i]
         ground = low < 0.0
         c[ground, 1] -= low[ground]
