@@ -17,6 +17,7 @@ from crowd_ik.kernels.quat import (
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
 from crowd_ik.kernels.rotation_goals import rotation_error
+from crowd_ik.solvers.fabrik_restart import SLOW, WINDOW
 from crowd_ik.solvers.settings import (
     FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
 )
@@ -372,6 +373,86 @@ def recover_and_constrain(i, parent: ti.template(), offset: ti.template(), kind:
         world_rot[i, j] = qmul(base_rot, q)
 
 
+@ti.func
+def solve_one(i, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
+              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+              dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
+              eff_joint: ti.template(), eff_axis: ti.template(), root_pos: ti.template(), root_yaw: ti.template(),
+              local_rot: ti.template(), world_pos: ti.template(), world_rot: ti.template(), targets: ti.template(),
+              weights: ti.template(), orient: ti.template(), work: ti.template(), acc_w: ti.template(), cap,
+              tolerance, recover_each_iteration, use_orient, rot_t: ti.template(), rot_w: ti.template(),
+              eff_move: ti.template(), rotation_tolerance, use_rot: ti.template(), mode, ref):
+    """fabrik_solve for character i, at most `cap` updates; returns (error, updates, stop). With mode 1 the updates
+    run in windows of WINDOW: a window that leaves more than SLOW of the error it started with (for the first, of
+    `ref`) ends the solve (stop 2), one that does not is followed by the next as a fresh launch would follow it (the
+    stall count restarted); stop 1: stalled."""
+    err = effector_error(i, eff_joint, targets, weights, world_pos)
+    turn = 0.0
+    if use_orient:
+        turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+    rturn = 0.0
+    if ti.static(use_rot):
+        rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
+    it = 0
+    flat = 0
+    stop = 0
+    done = 0
+    window_err = ref  # what the current window's error is judged against (mode 1)
+    while done == 0:
+        # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
+        iterate = it < cap and (err > tolerance or turn > 1e-6) and stop == 0
+        if ti.static(use_rot):
+            iterate = iterate or (it < cap and rturn > rotation_tolerance and stop == 0)
+        if iterate:
+            backward_pass(i, parent, offset, kind, eff_joint, targets, weights, local_rot, world_pos, work, acc_w,
+                          rot_t, rot_w, use_rot)
+            forward_pass(i, parent, offset, world_pos, work, acc_w)
+            if not recover_each_iteration:
+                for j in range(parent.shape[0]):
+                    if acc_w[i, j] > 0.0:
+                        world_pos[i, j] = work[i, j]
+        # one call site (each inlined copy of this sweep costs ~20 s of compile time): every iteration of
+        # a constrained rig, or once after the last iteration of a constraint-free one
+        if (iterate and recover_each_iteration) or (not iterate and not recover_each_iteration and it > 0):
+            recover_and_constrain(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
+                                  child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
+                                  world_rot, weights, orient, work, acc_w, use_orient, rot_t, rot_w, eff_move,
+                                  use_rot)
+        if iterate:
+            new_err = effector_error(i, eff_joint, targets, weights, world_pos)
+            new_turn = 0.0
+            if use_orient:
+                new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
+            new_rturn = 0.0
+            if ti.static(use_rot):
+                new_rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
+            it += 1
+            # stalled: four updates in a row that improved neither error by one part in a million
+            flat_now = new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT)
+            if ti.static(use_rot):
+                flat_now = flat_now and new_rturn >= rturn * (1.0 - FLAT)
+            if flat_now:
+                flat += 1
+            else:
+                flat = 0
+            err = new_err
+            turn = new_turn
+            rturn = new_rturn
+            if flat >= STALL_AFTER:
+                stop = 1
+            if stop == 0 and mode == 1 and it % WINDOW == 0:  # a window's end (solvers/fabrik_restart.py)
+                if err > SLOW * window_err:
+                    stop = 2
+                else:
+                    window_err = err
+                    flat = 0
+        else:
+            if not recover_each_iteration and it > 0:
+                err = effector_error(i, eff_joint, targets, weights, world_pos)
+            done = 1
+    return err, it, stop
+
+
 @ti.kernel
 def fabrik_solve(
     parent: ndarray(dtype=ti.i32, ndim=1),
@@ -423,65 +504,25 @@ def fabrik_solve(
     after the last iteration gives the same pose for a fraction of the work. (At a sub-base FABRIK moves
     the children independently, and one rotation fits them only on average: there the final pose is the
     fit of the last positions, not of each iteration's, and the error reported is the fitted pose's.)
+    recover_each_iteration 2 is 1 for FABRIK's windowed solve (solvers/fabrik_restart.py): on entry iterations[i] is
+    character i's budget (at most max_iterations; 0: the character is left alone, its outputs unwritten), stalled[i]
+    its mode and error[i] its first window's reference (solve_one); on exit stalled[i] is 2 where a slow window
+    ended the solve.
     """
     for i in range(root_pos.shape[0]):
-        err = effector_error(i, eff_joint, targets, weights, world_pos)
-        turn = 0.0
-        if use_orient:
-            turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
-        rturn = 0.0
-        if ti.static(use_rot):
-            rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
-        it = 0
-        flat = 0
-        stop = 0
-        done = 0
-        while done == 0:
-            # orientation targets keep it going until they are met to ~1.4 mrad (1 - cos < 1e-6)
-            iterate = it < max_iterations and (err > tolerance or turn > 1e-6) and stop == 0
-            if ti.static(use_rot):
-                iterate = iterate or (it < max_iterations and rturn > rotation_tolerance and stop == 0)
-            if iterate:
-                backward_pass(i, parent, offset, kind, eff_joint, targets, weights, local_rot, world_pos, work, acc_w,
-                              rot_t, rot_w, use_rot)
-                forward_pass(i, parent, offset, world_pos, work, acc_w)
-                if not recover_each_iteration:
-                    for j in range(parent.shape[0]):
-                        if acc_w[i, j] > 0.0:
-                            world_pos[i, j] = work[i, j]
-            # one call site (each inlined copy of this sweep costs ~20 s of compile time): every iteration of
-            # a constrained rig, or once after the last iteration of a constraint-free one
-            if (iterate and recover_each_iteration) or (not iterate and not recover_each_iteration and it > 0):
-                recover_and_constrain(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
+        cap = max_iterations
+        mode = 0
+        ref = 0.0
+        if recover_each_iteration == 2:
+            cap = ti.min(max_iterations, iterations[i])
+            mode = stalled[i]
+            ref = error[i]
+        if cap > 0 or recover_each_iteration != 2:
+            err, it, stop = solve_one(i, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
                                       child_list, eff_joint, eff_axis, root_pos, root_yaw, local_rot, world_pos,
-                                      world_rot, weights, orient, work, acc_w, use_orient, rot_t, rot_w, eff_move,
-                                      use_rot)
-            if iterate:
-                new_err = effector_error(i, eff_joint, targets, weights, world_pos)
-                new_turn = 0.0
-                if use_orient:
-                    new_turn = orientation_error(i, eff_joint, eff_axis, weights, orient, world_rot)
-                new_rturn = 0.0
-                if ti.static(use_rot):
-                    new_rturn = rotation_error(i, eff_joint, rot_t, rot_w, world_rot)
-                it += 1
-                # stalled: four updates in a row that improved neither error by one part in a million
-                flat_now = new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT)
-                if ti.static(use_rot):
-                    flat_now = flat_now and new_rturn >= rturn * (1.0 - FLAT)
-                if flat_now:
-                    flat += 1
-                else:
-                    flat = 0
-                err = new_err
-                turn = new_turn
-                rturn = new_rturn
-                if flat >= STALL_AFTER:
-                    stop = 1
-            else:
-                if not recover_each_iteration and it > 0:
-                    err = effector_error(i, eff_joint, targets, weights, world_pos)
-                done = 1
-        error[i] = err
-        iterations[i] = it
-        stalled[i] = stop
+                                      world_rot, targets, weights, orient, work, acc_w, cap, tolerance,
+                                      recover_each_iteration, use_orient, rot_t, rot_w, eff_move, rotation_tolerance,
+                                      use_rot, mode, ref)
+            error[i] = err
+            iterations[i] = it
+            stalled[i] = stop

@@ -1,7 +1,7 @@
 """Row moves for FABRIK's windowed solve (crowd_ik/solvers/fabrik_restart.py): the joint angles of listed characters
 read, new start angles written (the pose before saved first where asked), and saved poses put back, each followed by
-the characters' forward kinematics (kernels/fk.py character_fk). No solver arithmetic: the windows themselves
-are launches of kernels/fabrik.py.
+the characters' forward kinematics (kernels/fk.py character_fk). No solver arithmetic: the solves themselves are
+launches of kernels/fabrik.py's fabrik_solve (recover_each_iteration 2: per-character budgets and windows).
 
 The characters are which[:count] of buffers sized for the whole crowd (so that a prepared launch binds the same
 arrays every time, crowd_ik/prepared.py); `serial` (kernels/serial_loops.py) runs a few characters' moves on the

@@ -25,13 +25,13 @@ without limits, and solves with orientation or rotation targets are solvers/fabr
 from __future__ import annotations
 
 import functools
-from dataclasses import replace
 
 import numpy as np
 
 from crowd_ik.kernels.serial_loops import JOINT, serial_for
 from crowd_ik.prepared import prepared
-from crowd_ik.solvers import fabrik
+from crowd_ik.solvers import bundles, fabrik
+from crowd_ik.solvers.ccd import moving_joints
 
 WINDOW = 8  # iterations per window; a solve of at most this many is one launch, as without windows
 MAX_RESTARTS = 3  # restarts per character at most
@@ -45,6 +45,11 @@ JUMP_FACTOR = 9.0  # a jump is at most this many times the last window's step
 JUMP_MIN_STEP = 1e-4  # rad: a last window's step below this makes no jump
 SLOW = 0.5  # a window that leaves more than this fraction of the error is slow: its angles are tracked for jumps
 AT_LIMIT = 1e-3  # rad: an angle this close to a limit sits at it
+# a character that has restarted or jumped gives up (stops, STALLED) when its best pose is more than GIVE_UP_BEST
+# tolerances off and it stands more than GIVE_UP_NOW off, or after GIVE_UP_LATE updates with its best more than
+# GIVE_UP_LATE_BEST off: on the bench's humanoids (targets that no pose meets) such characters converged 1 in 25
+GIVE_UP_BEST, GIVE_UP_NOW = 10.0, 15.0
+GIVE_UP_LATE, GIVE_UP_LATE_BEST = 60, 5.0
 
 
 def windowed(crowd, req) -> bool:
@@ -80,6 +85,11 @@ class _Rows:
         self.save = np.zeros(N, np.int32)
         self.angles = np.zeros((N, D), np.float32)
         self.saved = crowd.scratch("fabrik_saved_rot", crowd.ti.math.vec4, (N, crowd.rig.n_joints))
+        self.budget = np.zeros(N, np.int32)
+        self.mode = np.zeros(N, np.int32)  # 1: solved in windows (reachable), 0: plainly
+        self.work = crowd.scratch("fabrik_pos", crowd.ti.math.vec3, (N, crowd.rig.n_joints))
+        self.acc_w = crowd.scratch("fabrik_w", crowd.ti.f32, (N, crowd.rig.n_joints))
+        self.move = moving_joints(crowd.rig)
 
 
 class _Windows:
@@ -95,10 +105,11 @@ class _Windows:
         self.used = np.zeros(N, np.int32)
         self.last = np.zeros(N, np.int32)  # updates of each character's last window
         self.err = np.zeros(N, np.float32)
-        self.before = np.full(N, np.inf, np.float32)  # the error before each character's last window
-        self.stalled = np.zeros(N, bool)
+        self.stalled = np.zeros(N, bool)  # its last solve stalled
+        self.slow = np.zeros(N, bool)  # its last solve ended with a slow window
         self.best_err = np.full(N, np.inf, np.float32)  # of the pose saved in rows.saved (inf: none saved)
         self.restarts = np.zeros(N, np.int32)
+        self.tried = np.zeros(N, bool)  # restarted or jumped at least once
         self.hist = np.zeros((3, N, self.n_dof), np.float32)  # the last three window ends' angles, oldest first
         self.n_hist = np.zeros(N, np.int32)
         rows = crowd.__dict__.get("_fabrik_rows")
@@ -109,39 +120,34 @@ class _Windows:
     def run(self) -> None:
         crowd, req, b = self.crowd, self.req, self.crowd.buffers
         M, tol = req.max_iterations, req.tolerance
-        weights = b.weights.copy()
-        reachable = self._reachable(weights)
-        self._window(np.arange(crowd.n), min(WINDOW, M))
-        try:
-            while True:
-                left = M - self.used
-                live = self.err > tol
-                restart = (live & self.stalled & reachable & (left >= RESTART_LEFT) & (self.restarts < MAX_RESTARTS)
-                           & (self.err <= RESTART_NEAR * tol))
-                act = np.flatnonzero(live & (left > 0) & (~self.stalled | restart))
-                if act.size == 0:
-                    break
-                # the unreachable only go on; so do those whose last window cut their error to SLOW of it or less
-                slow = reachable & (restart | (self.err > SLOW * self.before))
-                self.n_hist[act[~slow[act]]] = 0
-                mine = act[slow[act]]
-                moved = self._between(mine, restart[mine]) if mine.size else mine
-                # one launch per distinct budget: all but the last rounds have one, min(WINDOW, left)
-                budget = np.minimum(WINDOW, left[act])
-                for it in np.unique(budget)[::-1]:
-                    group = act[budget == it]
-                    on = np.zeros(crowd.n, bool)
-                    on[group] = True
-                    np.multiply(weights, on[:, None], out=b.weights)
-                    self._window(group, int(it))
-                # a moved start already within tolerance got no update, so no clamp to the limits: undo the move
-                undo = moved[self.last[moved] == 0]
-                if undo.size:
-                    self._put_back(undo)
-                    self.err[undo] = self.best_err[undo]
-                    self.stalled[undo] = True
-        finally:
-            np.copyto(b.weights, weights)
+        reachable = self._reachable(b.weights)
+        self.rows.mode[:] = reachable  # the unreachable only go on: one plain solve of all their updates
+        # every first window is judged against 0, so slow: its end's angles start the tracking for jumps
+        self._solve(np.arange(crowd.n), np.full(crowd.n, M, np.int32))
+        while True:
+            left = M - self.used
+            live = self.err > tol
+            restart = (live & self.stalled & reachable & (left >= RESTART_LEFT) & (self.restarts < MAX_RESTARTS)
+                       & (self.err <= RESTART_NEAR * tol))
+            act = np.flatnonzero(live & (left > 0) & (self.slow | restart))
+            best = np.minimum(self.best_err[act], self.err[act])
+            give_up = self.tried[act] & (((best > GIVE_UP_BEST * tol) & (self.err[act] > GIVE_UP_NOW * tol))
+                                         | ((self.used[act] >= GIVE_UP_LATE) & (best > GIVE_UP_LATE_BEST * tol)))
+            if give_up.any():
+                self.stalled[act[give_up]] = True
+                act = act[~give_up]
+            if act.size == 0:
+                break
+            # a solve that passed a fast window's end (more than one window) starts the slow windows' count afresh
+            self.n_hist[act[self.last[act] > WINDOW]] = 0
+            moved = self._between(act, restart[act])
+            self._solve(act, left[act])
+            # a moved start already within tolerance got no update, so no clamp to the limits: undo the move
+            undo = moved[self.last[moved] == 0]
+            if undo.size:
+                self._put_back(undo)
+                self.err[undo] = self.best_err[undo]
+                self.stalled[undo] = True
         back = np.flatnonzero(self.best_err < self.err)
         if back.size:
             self._put_back(back)
@@ -150,16 +156,26 @@ class _Windows:
         np.copyto(b.iterations, self.used)
         np.copyto(b.stalled, (self.err > tol) & self.stalled, casting="unsafe")
 
-    def _window(self, act: np.ndarray, iterations: int) -> None:
-        """One launch of at most `iterations` updates; the characters act (K,) take its results (the others are
-        masked out by their weights)."""
-        b = self.crowd.buffers
-        fabrik.solve(self.crowd, replace(self.req, max_iterations=iterations))
+    def _solve(self, act: np.ndarray, budget: np.ndarray) -> None:
+        """One launch of kernels/fabrik.py's fabrik_solve in its windowed mode for the characters act (K,), budget
+        (K,) updates each: the reachable in windows that go on while fast, the others plainly; the rest untouched."""
+        from crowd_ik.kernels import fabrik as k
+
+        crowd, rows, b = self.crowd, self.rows, self.crowd.buffers
+        b.iterations.fill(0)
+        b.iterations[act] = budget
+        b.stalled[act] = rows.mode[act]
+        b.error[act] = self.err[act]  # the first window's reference: the error before it (0 before the first)
+        prepared(k.fabrik_solve)(
+            *bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), rows.work, rows.acc_w,
+            self.req.max_iterations, self.req.tolerance, 2, 0, *bundles.rotation_goal(crowd), rows.move, 0.0, 0,
+            *bundles.result(crowd))
         self.last[act] = b.iterations[act]
         self.used[act] += self.last[act]
-        self.before[act] = self.err[act]
         self.err[act] = b.error[act]
-        self.stalled[act] = b.stalled[act] != 0
+        code = b.stalled[act]
+        self.stalled[act] = code == 1
+        self.slow[act] = code == 2
 
     def _reachable(self, weights: np.ndarray) -> np.ndarray:
         """(N,) bool: no positively weighted target beyond its chain's reach from the root joint (Crowd._report's
@@ -213,6 +229,7 @@ class _Windows:
         if not moved.any():
             return act[:0]
         mi = act[moved]
+        self.tried[mi] = True
         start = np.clip(start[moved], self.lo, self.hi)
         self._write(mi, start)
         h[2, mi] = start
