@@ -2,24 +2,29 @@
 
 FABRIK with joint limits converges linearly, and near a limit it can stop at a pose that is not a solution: from
 rest to in-limit poses of the humanoid 8 % of the characters stalled or crept to max_iterations. A solve with more
-than WINDOW iterations therefore runs as windows of at most WINDOW iterations (launches of solvers/fabrik.solve,
-the same kernels, the characters that are done masked out by a zero weight), and between windows each character
-that is not yet within tolerance either
-- goes on from where it stands;
-- restarts, when its last window stalled, RESTART_LEFT iterations are left, it is within RESTART_NEAR tolerances of
+than WINDOW iterations therefore runs its reachable characters in windows of WINDOW iterations, and at the end of a
+window each character that is not yet within tolerance either
+- goes on from where it stands: after a fast window (one that left at most SLOW of the error it started with; the
+  first window counts as slow), inside the same launch;
+- restarts, when it stalled, RESTART_LEFT iterations are left, it is within RESTART_NEAR tolerances of
   its targets and has restarted fewer than MAX_RESTARTS times: from the best pose it has had, the
   joint angles that sit at a limit pulled PULL rad inside it, and from the second restart on a kick of KICK rad
   (a fixed sequence of normal draws, the k-th restart of every character takes the k-th: no character depends on
   another, so a batch solves as its characters one at a time);
-- or jumps, when its last three windows were slow (each left more than SLOW of the error it started with; only
-  these characters' angles are read) and moved its angles by steps d shrinking by a ratio r in JUMP_RATIO: to the
-  limit of that geometric sequence (angles + d r / (1 - r), at most JUMP_FACTOR d), clipped to the limits.
-Characters with a target beyond their reach (Crowd's UNREACHABLE rule) only go on. Every character keeps the pose
-with the lowest error it has had. The report counts every update applied, restarts and jumps included, and no
-character gets more than max_iterations of them (its next window gets min(WINDOW, what it has left); one launch per
-distinct budget, in all but the last rounds one); STALLED means the last attempt stopped improving, MAX_ITERATIONS that it was still
-improving when the clock ran out. Solves of at most WINDOW iterations (the game's warm 4-iteration frames), rigs
-without limits, and solves with orientation or rotation targets are solvers/fabrik.solve unchanged.
+- or jumps, when its last three windows were slow and moved its angles by steps d shrinking by a ratio r in
+  JUMP_RATIO: to the limit of that geometric sequence (angles + d r / (1 - r), at most JUMP_FACTOR d), clipped to
+  the limits;
+- or gives up (GIVE_UP_*), once it has restarted or jumped, when it is still far from its targets.
+The windows are kernels/fabrik.py's fabrik_solve in its windowed mode (recover_each_iteration 2): one launch per
+round for the characters listed, each with its own budget (what it has left), a slow window or a stall ending a
+character's launch; the host then reads the slow ones' angles and moves the starts (kernels/fabrik_restart.py).
+Characters with a target beyond their reach (Crowd's UNREACHABLE rule) get one plain solve of all their
+iterations, as without windows. Every character keeps the pose with the lowest error it has had. The report counts
+every update applied, restarts and jumps included, never more than max_iterations; STALLED means the last attempt
+stopped improving (or gave up), MAX_ITERATIONS that it was still improving when the clock ran out. Solves of at
+most WINDOW iterations (the game's warm 4-iteration frames), rigs without limits, and solves with orientation or
+rotation targets are solvers/fabrik.solve unchanged (with CROWD_IK_LIMITED_LANES=1 too: the windows always run the
+one-character kernel).
 """
 
 from __future__ import annotations
@@ -76,8 +81,9 @@ def _kick(k: int, n_dof: int) -> np.ndarray:
 
 
 class _Rows:
-    """A crowd's buffers for the row moves (kernels/fabrik_restart.py), kept across solves so that their launches
-    are prepared: the listed characters, their save flags, their angles, and the saved rotations."""
+    """A crowd's buffers for the windows' launches, kept across solves so that they are prepared: the listed
+    characters, their save flags, their angles, the saved rotations, each character's mode (1: windows) and the
+    solver's scratch."""
 
     def __init__(self, crowd):
         N, D = crowd.n, crowd.rig.n_dof
@@ -85,7 +91,6 @@ class _Rows:
         self.save = np.zeros(N, np.int32)
         self.angles = np.zeros((N, D), np.float32)
         self.saved = crowd.scratch("fabrik_saved_rot", crowd.ti.math.vec4, (N, crowd.rig.n_joints))
-        self.budget = np.zeros(N, np.int32)
         self.mode = np.zeros(N, np.int32)  # 1: solved in windows (reachable), 0: plainly
         self.work = crowd.scratch("fabrik_pos", crowd.ti.math.vec3, (N, crowd.rig.n_joints))
         self.acc_w = crowd.scratch("fabrik_w", crowd.ti.f32, (N, crowd.rig.n_joints))
