@@ -10,6 +10,8 @@ from crowd_ik.kernels.raster_geometry import (
     LIGHT_Y, LIGHT_Z, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPAN, SPECULAR, TILE, cam_vec,
     capsule_normal, fog, ground_hit, line_cover, pixel_dir, pixel_ray, row3,
 )
+from crowd_ik.kernels.raster_lanes import L as LANES
+from crowd_ik.kernels.raster_lanes import ground_lanes
 
 ndarray = ti.types.ndarray
 
@@ -286,7 +288,8 @@ def shade_frame_fresh(
 def shade_fresh(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: ti.template(), keys: ti.template(),
                 shadow: ti.template(), frame: ti.template(), depth: ti.template()):
     """shade_frame_fresh's loop (the top-level, parallel loop of the kernel it is inlined in), over SPAN-pixel
-    pieces of rows."""
+    pieces of rows: the background of each LANES-pixel packet in lanes (raster_lanes.ground_lanes), then each
+    pixel shaded; a row's last pixels short of a packet as background_pixel does."""
     width = keys.shape[1]
     spans = (width + SPAN - 1) // SPAN
     for item in range(keys.shape[0] * spans):
@@ -294,25 +297,38 @@ def shade_fresh(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
         x0 = (item % spans) * SPAN
         x1 = ti.min(x0 + SPAN, width)
         i0, i1, fv = shadow_row(shadow, py)
-        for px in range(x0, x1):
-            d, rd, tg, ground_z = ground_ray(cam, px, py)
-            key = keys[py, px]
-            pid = ti.cast(key & ti.i64(0xFFFFFFFF), ti.i32)
-            z = ti.bit_cast(ti.cast(key >> 32, ti.i32), ti.f32)
-            b1 = 0.0
-            b2 = 0.0
-            if not (pid != EMPTY_ID and z < ground_z):  # shade_pixel draws the ground or sky: it needs b1, b2
-                b1, b2 = ground_look(cam, d, rd, tg)
-            shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py, ground_z, b1, b2)
+        for g in range((x1 - x0 + LANES - 1) // LANES):
+            p0 = x0 + g * LANES
+            if p0 + LANES <= x1:
+                b0, b1, b2 = ground_lanes(cam, p0, py)
+                for k in range(LANES):
+                    shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, p0 + k, py, b0[k], b1[k],
+                                b2[k])
+            else:
+                for px in range(p0, x1):
+                    d, rd, tg, ground_z = ground_ray(cam, px, py)
+                    b1, b2 = ground_look(cam, d, rd, tg)
+                    shade_pixel(cam, pa, pb, color, keys, shadow, frame, depth, i0, i1, fv, px, py, ground_z, b1, b2)
 
 
 @ti.func
 def background_all(cam: ti.template(), background: ti.template()):
     """shade_background's loop (the top-level, parallel loop of the kernel it is inlined in), over SPAN-pixel
-    pieces of rows."""
+    pieces of rows, in LANES-pixel packets (raster_lanes.ground_lanes; a row's last pixels short of a packet as
+    background_span)."""
     width = background.shape[1]
     spans = (width + SPAN - 1) // SPAN
     for item in range(background.shape[0] * spans):
         py = item // spans
         x0 = (item % spans) * SPAN
-        background_span(cam, background, py, x0, ti.min(x0 + SPAN, width))
+        x1 = ti.min(x0 + SPAN, width)
+        for g in range((x1 - x0 + LANES - 1) // LANES):
+            p0 = x0 + g * LANES
+            if p0 + LANES <= x1:
+                b0, b1, b2 = ground_lanes(cam, p0, py)
+                for k in range(LANES):
+                    background[py, p0 + k, 0] = b0[k]
+                    background[py, p0 + k, 1] = b1[k]
+                    background[py, p0 + k, 2] = b2[k]
+            else:
+                background_span(cam, background, py, p0, x1)

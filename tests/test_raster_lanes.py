@@ -1,0 +1,45 @@
+"""The sixteen-pixel background (kernels/raster_lanes.py) is the scalar one bit for bit: shade_background and
+shade_frame_fresh (lanes) against shade_frame_background (scalar background_span), on random tilted cameras and
+widths that leave a row's last pixels short of a packet."""
+
+import numpy as np
+import pytest
+
+from crowd_ik.kernels import raster as kr
+from crowd_ik.view.render import Camera
+
+
+def _camera(g, width, height):
+    eye = g.uniform([-20.0, 0.5, -20.0], [20.0, 12.0, 20.0])
+    return Camera(eye, g.uniform(-5.0, 5.0, 3), g.uniform(30.0, 80.0), width, height,
+                  up=(g.normal(0.0, 0.3), 1.0, g.normal(0.0, 0.3)))
+
+
+@pytest.mark.parametrize("seed,width,height", [(0, 320, 180), (1, 200, 120), (2, 96, 64), (3, 328, 200)])
+def test_lane_background_and_fresh_frames_equal_the_scalar_path(seed, width, height):
+    g = np.random.default_rng(seed)
+    cam = _camera(g, width, height)
+    n = 40
+    a = g.uniform([-3.0, 0.0, -3.0], [3.0, 1.8, 3.0], (n, 3)).astype(np.float32)
+    b = (a + g.normal(0.0, 0.6, (n, 3))).astype(np.float32)
+    r = g.uniform(0.05, 0.3, n).astype(np.float32)
+    c = g.uniform(0.0, 1.0, (n, 3)).astype(np.float32)
+    p = cam.packed()
+    keys = np.zeros((height, width), np.int64)
+    shadow = np.zeros((height // 2, width // 2), np.int32)
+    tiles = np.ones(((height + kr.TILE - 1) // kr.TILE, (width + kr.TILE - 1) // kr.TILE), np.int32)
+    kr.clear_buffers(keys, shadow, tiles)
+    kr.raster_capsules(p, a, b, r, n, keys, tiles)
+    kr.splat_shadows(p, a, b, r, n, shadow, tiles)
+    ref_bg = np.zeros((height, width, 3), np.float32)
+    ref_frame = np.zeros((height, width, 3), np.uint8)
+    ref_depth = np.zeros((height, width), np.float32)
+    kr.shade_frame_background(p, a, b, c, keys, shadow, ref_bg, ref_frame, ref_depth)
+    bg = np.zeros_like(ref_bg)
+    kr.shade_background(p, bg)
+    frame = np.zeros_like(ref_frame)
+    depth = np.zeros_like(ref_depth)
+    kr.shade_frame_fresh(p, a, b, c, keys, shadow, frame, depth)
+    assert np.array_equal(bg.view(np.int32), ref_bg.view(np.int32))
+    assert np.array_equal(frame, ref_frame)
+    assert np.array_equal(depth.view(np.int32), ref_depth.view(np.int32))
