@@ -17,9 +17,9 @@ from crowd_ik.kernels.quat import (
     swing, twist_angle, wrap_angle, yaw_quat, vec3, vec4,
 )
 from crowd_ik.kernels.rotation_goals import rotation_error
-from crowd_ik.solvers.fabrik_restart import SLOW, WINDOW
 from crowd_ik.solvers.settings import (
-    FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS, TWIST_FULL_BEND, TWIST_MIN_BEND,
+    FABRIK_FLAT as FLAT, FABRIK_SLOW as SLOW, FABRIK_STALL_AFTER as STALL_AFTER, FABRIK_WINDOW as WINDOW, SWING_ROUNDS,
+    TWIST_FULL_BEND, TWIST_MIN_BEND,
 )
 
 ndarray = ti.types.ndarray

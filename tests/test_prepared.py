@@ -44,9 +44,11 @@ def test_prepared_launch_follows_other_arrays_and_forgets_dead_ones():
 
     rng = np.random.default_rng(1)
     launch = Prepared(gk.separate)
+    alive = []  # both array sets stay alive until they are deleted below
     for _ in range(2):
         pts, radius, kind, order, start = _separate_inputs(rng)
         steer, push = np.zeros_like(pts), np.zeros_like(pts)
+        alive.append((pts, radius, kind, order, start, steer, push))
         want_s, want_p = np.zeros_like(pts), np.zeros_like(pts)
         for _ in range(3):
             launch(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, steer, push, False)
@@ -54,7 +56,7 @@ def test_prepared_launch_follows_other_arrays_and_forgets_dead_ones():
         np.testing.assert_array_equal(steer, want_s)
         np.testing.assert_array_equal(push, want_p)
     assert len(launch._contexts) == 2
-    del pts, steer, push
+    del pts, steer, push, alive
     gc.collect()
     # a context is dropped as soon as one of its arrays dies (both sets are gone by now), and a
     # fresh array set still works

@@ -37,8 +37,8 @@ from crowd_ik.kernels.serial_loops import JOINT, serial_for
 from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, fabrik
 from crowd_ik.solvers.ccd import moving_joints
+from crowd_ik.solvers.settings import FABRIK_SLOW as SLOW, FABRIK_WINDOW as WINDOW  # noqa: F401 (SLOW: docs, tests)
 
-WINDOW = 8  # iterations per window; a solve of at most this many is one launch, as without windows
 MAX_RESTARTS = 3  # restarts per character at most
 RESTART_NEAR = 20.0  # a stalled character restarts only within this many tolerances of its targets
 RESTART_LEFT = 10  # a stalled character restarts only with at least this many iterations left
@@ -48,7 +48,6 @@ KICK_SEED = 1000  # the k-th restart's kick is np.random.default_rng(KICK_SEED +
 JUMP_RATIO = (0.3, 1.0)  # the shrink ratio of the last two window steps that allows a jump
 JUMP_FACTOR = 9.0  # a jump is at most this many times the last window's step
 JUMP_MIN_STEP = 1e-4  # rad: a last window's step below this makes no jump
-SLOW = 0.5  # a window that leaves more than this fraction of the error is slow: its angles are tracked for jumps
 AT_LIMIT = 1e-3  # rad: an angle this close to a limit sits at it
 # a character that has restarted or jumped gives up (stops, STALLED) when its best pose is more than GIVE_UP_BEST
 # tolerances off and it stands more than GIVE_UP_NOW off, or after GIVE_UP_LATE updates with its best more than

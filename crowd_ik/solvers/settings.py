@@ -28,6 +28,10 @@ FABRIK_STALL_AFTER, FABRIK_FLAT = 4, 1e-6
 # A joint with several active children (a sub-base) turns by the weighted mean of their swings, refined
 # this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
 SWING_ROUNDS = 2
+# FABRIK's windowed solve (solvers/fabrik_restart.py) runs in windows of FABRIK_WINDOW iterations (a solve of at
+# most this many is one launch, as without windows); a window that leaves more than FABRIK_SLOW of the error it
+# started with is slow: its angles are tracked for jumps.
+FABRIK_WINDOW, FABRIK_SLOW = 8, 0.5
 
 # ---------------------------------------------------------------------------------------------- poles
 # kernels/poles.py: a limb whose bend joint lies within POLE_MIN_BEND x its distance of the line from the pivot to
