@@ -163,7 +163,9 @@ def test_balance_kernel_matches_numpy_twin(case):
     agree = iters == rep.iterations
     assert np.mean(agree) >= 0.85
     np.testing.assert_allclose(rep.error[agree], err[agree], atol=1e-5)
-    np.testing.assert_allclose(crowd.joint_positions()[agree], pos[agree], atol=1e-4)
+    # float32 against float64 over up to 60 damped steps: on the Intel Xeon (AVX-512 + IFMA/VBMI) one humanoid's
+    # joints end 1.2e-4 m from the twin's (LLVM's per-CPU codegen rounds a few float32 sums differently)
+    np.testing.assert_allclose(crowd.joint_positions()[agree], pos[agree], atol=3e-4)
     off = np.linalg.norm(centre_of_mass_offset(crowd.rig, pos), axis=1)
     assert np.mean(off < 2e-3) >= 0.9
 

@@ -25,10 +25,12 @@ GOLDEN = {
     "duel": {
         "bfb2d774c40a74040febde0c70e78000ba0ed38809d61a801a319d493d028ebd",  # AMD EPYC, AVX-512 (sessions 24-25)
         "b929e1565ed50b3db06b8a7640c298addcbda3f72d0878c1d7ce22036b1dbf4e",  # AMD EPYC, AVX-512 + IFMA/VBMI
+        "ac4467344f84c486e898b20c63ead424a2ccccddeb2c3d412909e270a44ac384",  # Intel Xeon, AVX-512 + IFMA/VBMI (and CI)
     },
     "arena": {
         "babcaca9241a83a15183fb851bc461cc01c2418bbae490deff3be0681be01507",
-        "f7b230d131997a7948c72712beec4b11f2022e97b2601493838bdb84098d6d3a",  # the same two CPUs
+        "f7b230d131997a7948c72712beec4b11f2022e97b2601493838bdb84098d6d3a",
+        "f7137220df88eec407380a4bde9c77455d832ff0c150fba6452f9184473caca1",  # the same three CPUs
     },
 }
 
