@@ -40,7 +40,7 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
-from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS, TASK_ITEMS
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
 ndarray = ti.types.ndarray
@@ -95,8 +95,10 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        ti.loop_config(block_dim=1)  # streams end at different times: hand them out one at a time
-        for s in range(S):
+        for task in range(S * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+            if task % TASK_ITEMS != 0:
+                continue
+            s = task // TASK_ITEMS
             nxt = s * chunk
             end = ti.min(nxt + chunk, N)
             cur = Vi(-1)  # each lane's character, -1 for none
@@ -276,8 +278,10 @@ def free_recover(L: int, max_joints: int):
         E = eff_joint.shape[0]
         P = gx.shape[0]
         chunk = (P + n_streams - 1) // n_streams
-        ti.loop_config(block_dim=1)
-        for s in range(n_streams):
+        for task in range(n_streams * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+            if task % TASK_ITEMS != 0:
+                continue
+            s = task // TASK_ITEMS
             for p in range(s * chunk, ti.min(s * chunk + chunk, P)):
                 m = V(0.0)  # lanes whose character iterated
                 rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)

@@ -26,7 +26,7 @@ import taichi as ti
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
-from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS, TASK_ITEMS
 from crowd_ik.kernels.quat import yaw_quat
 
 from crowd_ik.solvers.settings import (
@@ -375,8 +375,10 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        ti.loop_config(block_dim=1)  # streams end at different times: hand them out one at a time
-        for s in range(S):
+        for task in range(S * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+            if task % TASK_ITEMS != 0:
+                continue
+            s = task // TASK_ITEMS
             nxt = s * chunk
             end = ti.min(nxt + chunk, N)
             cur = Vi(-1)  # each lane's character, -1 for none
