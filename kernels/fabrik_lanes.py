@@ -40,7 +40,8 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
-from crowd_ik.kernels.lane_plan import MAX_STREAMS, TASK_ITEMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.work_split import TASK_ITEMS
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
 ndarray = ti.types.ndarray
@@ -95,7 +96,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        for task in range(S * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+        for task in range(S * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
             if task % TASK_ITEMS != 0:
                 continue
             s = task // TASK_ITEMS
@@ -278,7 +279,7 @@ def free_recover(L: int, max_joints: int):
         E = eff_joint.shape[0]
         P = gx.shape[0]
         chunk = (P + n_streams - 1) // n_streams
-        for task in range(n_streams * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+        for task in range(n_streams * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
             if task % TASK_ITEMS != 0:
                 continue
             s = task // TASK_ITEMS

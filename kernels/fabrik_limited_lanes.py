@@ -26,7 +26,8 @@ import taichi as ti
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
-from crowd_ik.kernels.lane_plan import MAX_STREAMS, TASK_ITEMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.work_split import TASK_ITEMS
 from crowd_ik.kernels.quat import yaw_quat
 
 from crowd_ik.solvers.settings import (
@@ -375,7 +376,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        for task in range(S * TASK_ITEMS):  # one stream per TASK_ITEMS iterations (see lane_plan)
+        for task in range(S * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
             if task % TASK_ITEMS != 0:
                 continue
             s = task // TASK_ITEMS

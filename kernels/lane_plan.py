@@ -6,12 +6,6 @@ fields and launches with these, and Crowd passes the stream count to them.
 
 MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
 CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
-# Loop iterations per stream. Taichi 1.7.4's CPU backend splits a top-level loop of n iterations into blocks of
-# max(512, n / threads) consecutive iterations, whatever ti.loop_config's block_dim says (measured with
-# ti.global_thread_idx(): 16 or 600 iterations of 10 ms each ran on one thread and on 512 + 88; 4,000 on 2,000 +
-# 2,000). So the lane kernels loop over n_streams * TASK_ITEMS iterations and run stream t // TASK_ITEMS on every
-# TASK_ITEMS-th: each thread gets its share of the streams (chain16 FABRIK, 16 streams: one thread -> two).
-TASK_ITEMS = 512
 
 
 def packets(n: int, lanes: int) -> int:

@@ -75,6 +75,7 @@ from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch
     background_all, shade_all, shade_background, shade_frame, shade_frame_background, shade_frame_fresh, shade_fresh,
     shade_tiles,
 )
+from crowd_ik.kernels.work_split import banded_count, banded_item
 
 ndarray = ti.types.ndarray
 
@@ -105,8 +106,11 @@ def clear_tiles(keys: ti.template(), shadow: ti.template(), tiles: ti.template()
     height = keys.shape[0]
     width = keys.shape[1]
     columns = tiles.shape[1]
-    for item in range(tiles.shape[0] * columns):
-        ty = item // columns
+    rows = tiles.shape[0]
+    for item in range(banded_count(rows) * columns):  # tile rows in bands (kernels/work_split.py)
+        ty = banded_item(item // columns, rows)
+        if ty >= rows:
+            continue
         tx = item % columns
         flags = tiles[ty, tx]
         if flags & 1:

@@ -12,6 +12,7 @@ from crowd_ik.kernels.raster_geometry import (
 )
 from crowd_ik.kernels.raster_lanes import L as LANES
 from crowd_ik.kernels.raster_lanes import ground_lanes
+from crowd_ik.kernels.work_split import banded_count, banded_item
 
 ndarray = ti.types.ndarray
 
@@ -217,8 +218,11 @@ def shade_tiles(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
     column) pairs."""
     width = keys.shape[1]
     columns = tiles.shape[1]
-    for item in range(keys.shape[0] * columns):
-        py = item // columns
+    rows = keys.shape[0]
+    for item in range(banded_count(rows) * columns):  # rows in bands (kernels/work_split.py)
+        py = banded_item(item // columns, rows)
+        if py >= rows:
+            continue
         tx = item % columns
         if tiles[py // TILE, tx] != 0:
             i0, i1, fv = shadow_row(shadow, py)
@@ -254,8 +258,11 @@ def shade_all(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: t
     cache) to shade it."""
     width = keys.shape[1]
     spans = (width + SPAN - 1) // SPAN
-    for item in range(keys.shape[0] * spans):
-        py = item // spans
+    rows = keys.shape[0]
+    for item in range(banded_count(rows) * spans):  # rows in bands (kernels/work_split.py)
+        py = banded_item(item // spans, rows)
+        if py >= rows:
+            continue
         x0 = (item % spans) * SPAN
         x1 = ti.min(x0 + SPAN, width)
         background_span(cam, background, py, x0, x1)
@@ -292,8 +299,11 @@ def shade_fresh(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
     pixel shaded; a row's last pixels short of a packet as background_pixel does."""
     width = keys.shape[1]
     spans = (width + SPAN - 1) // SPAN
-    for item in range(keys.shape[0] * spans):
-        py = item // spans
+    rows = keys.shape[0]
+    for item in range(banded_count(rows) * spans):  # rows in bands (kernels/work_split.py)
+        py = banded_item(item // spans, rows)
+        if py >= rows:
+            continue
         x0 = (item % spans) * SPAN
         x1 = ti.min(x0 + SPAN, width)
         i0, i1, fv = shadow_row(shadow, py)
@@ -318,8 +328,11 @@ def background_all(cam: ti.template(), background: ti.template()):
     background_span)."""
     width = background.shape[1]
     spans = (width + SPAN - 1) // SPAN
-    for item in range(background.shape[0] * spans):
-        py = item // spans
+    rows = background.shape[0]
+    for item in range(banded_count(rows) * spans):  # rows in bands (kernels/work_split.py)
+        py = banded_item(item // spans, rows)
+        if py >= rows:
+            continue
         x0 = (item % spans) * SPAN
         x1 = ti.min(x0 + SPAN, width)
         for g in range((x1 - x0 + LANES - 1) // LANES):

@@ -1,0 +1,34 @@
+"""How a parallel loop's iterations reach Taichi's CPU threads, and two ways around it.
+
+Taichi 1.7.4's CPU backend cuts a top-level loop of n iterations into blocks of max(512, n / threads)
+consecutive iterations, whatever ti.loop_config's block_dim says, and its threads take the blocks in turn
+(so in effect one block per thread). Measured with
+ti.global_thread_idx() on 2 threads: 16 or 600 iterations of 10 ms each ran on one thread and on 512 + 88;
+4,000 on 2,000 + 2,000; and a 65,536-iteration loop whose first half held all the work took as long on two
+threads as on one. So:
+
+- a loop over few heavy items (the lane kernels' streams) runs on one thread: it loops over
+  n * TASK_ITEMS iterations and works on every TASK_ITEMS-th (see kernels/fabrik_lanes.py);
+- a loop whose work is uneven along its index (image rows: sky at the top, the crowd lower down) leaves
+  a thread idle: it visits its items in BANDS interleaved bands (banded_count, banded_item), so every
+  thread's block holds the same share of each band of the image.
+Neither changes what an item computes, so results stay the same bit for bit.
+"""
+
+import taichi as ti
+
+TASK_ITEMS = 512  # iterations per heavy item: at least one item per thread's block
+BANDS = 16  # bands a banded loop interleaves (a thread's block holds 1/threads of each)
+
+
+@ti.func
+def banded_count(n):
+    """The iterations of a banded loop over n items (n rounded up to a multiple of BANDS)."""
+    return (n + BANDS - 1) // BANDS * BANDS
+
+
+@ti.func
+def banded_item(k, n):
+    """The item that iteration k of a banded loop over n items works on; n or more means none (skip it).
+    Iteration k visits band k % BANDS, at position k // BANDS in it."""
+    return (k % BANDS) * ((n + BANDS - 1) // BANDS) + k // BANDS
