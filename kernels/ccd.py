@@ -38,6 +38,7 @@ from crowd_ik.kernels.ccd_steps import (
 )
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, swing, vec3, vec4, yaw_quat
 from crowd_ik.kernels.rotation_goals import rotation_error, turn_error
+from crowd_ik.kernels.work_split import spread_stride
 
 ndarray = ti.types.ndarray
 
@@ -206,7 +207,11 @@ def ccd_solve(
     rotation (turn_to_rotations), and the sweeps go on until 2 acos |<q, q_target>| <= rotation_tolerance too.
     With goals 0 none of orient, rot_t, rot_w, eff_move, aim_t is read.
     """
-    for i in range(root_pos.shape[0]):
+    stride = spread_stride(root_pos.shape[0])
+    for slot in range(root_pos.shape[0] * stride):  # (kernels/work_split.py: small crowds on every thread)
+        if slot % stride != 0:
+            continue
+        i = slot // stride
         # work relative to the root, so a character's result does not depend on where it stands
         q_root = yaw_quat(root_yaw[i])
         world_pos[i, 0] = qrot(q_root, offset[0])

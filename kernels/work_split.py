@@ -18,6 +18,7 @@ Neither changes what an item computes, so results stay the same bit for bit.
 import taichi as ti
 
 TASK_ITEMS = 512  # iterations per heavy item: at least one item per thread's block
+SPREAD_ITEMS = 8192  # a per-character loop over fewer characters is spread to this many iterations (16 blocks)
 BANDS = 16  # bands a banded loop interleaves (a thread's block holds 1/threads of each)
 
 
@@ -32,3 +33,12 @@ def banded_item(k, n):
     """The item that iteration k of a banded loop over n items works on; n or more means none (skip it).
     Iteration k visits band k % BANDS, at position k // BANDS in it."""
     return (k % BANDS) * ((n + BANDS - 1) // BANDS) + k // BANDS
+
+
+@ti.func
+def spread_stride(n):
+    """Iterations per item of a loop over n heavy items (one character each): enough that the loop has at
+    least SPREAD_ITEMS iterations, so a few hundred characters still reach every thread; 1 from
+    SPREAD_ITEMS items up (no cost for big crowds). Iteration k works on item k // stride where
+    k % stride == 0."""
+    return ti.max(1, (SPREAD_ITEMS + n - 1) // ti.max(n, 1))

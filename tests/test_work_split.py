@@ -81,3 +81,24 @@ def test_few_heavy_items_spread_by_task_items_use_several_threads(kernels):
     # the reason for TASK_ITEMS: the plain loop's 8 items fall in one block, one thread (if Taichi ever hands
     # them out one by one, this fails and TASK_ITEMS can go)
     assert len(set(plain)) == 1, plain
+
+
+@pytest.mark.parametrize("n", [1, 7, 100, 8191, 8192, 10000])
+def test_spread_loop_visits_every_item_once(n):
+    import taichi as ti
+
+    from crowd_ik.kernels.work_split import SPREAD_ITEMS, spread_stride
+
+    @ti.kernel
+    def visit(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
+        stride = spread_stride(n)
+        for slot in range(n * stride):
+            if slot % stride != 0:
+                continue
+            ti.atomic_add(seen[slot // stride], 1)
+        return n * stride
+
+    seen = np.zeros(n, dtype=np.int32)
+    iterations = visit(n, seen)
+    np.testing.assert_array_equal(seen, np.ones(n, dtype=np.int32))
+    assert iterations >= SPREAD_ITEMS and (n < SPREAD_ITEMS or iterations == n)
