@@ -18,7 +18,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
-from crowd_ik.kernels.work_split import TASK_ITEMS
+from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.kernels.dls_free import objective
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat
 from crowd_ik.solvers.settings import (
@@ -169,10 +169,11 @@ def free_solver(L: int, max_joints: int):
         dmax = eff_lim[0, 1]
         max_attempts = 2 * max_iterations + 8
         chunk = (N + n_streams - 1) // n_streams
-        for task in range(n_streams * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
-            if task % TASK_ITEMS != 0:
+        stride = spread_stride(n_streams)
+        for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
+            if slot % stride != 0:
                 continue
-            s = task // TASK_ITEMS
+            s = slot // stride
             nxt = s * chunk
             end = ti.min(nxt + chunk, N)
             cur = Vi(-1)

@@ -41,7 +41,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
-from crowd_ik.kernels.work_split import TASK_ITEMS
+from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
 ndarray = ti.types.ndarray
@@ -96,10 +96,11 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        for task in range(S * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
-            if task % TASK_ITEMS != 0:
+        stride = spread_stride(S)
+        for slot in range(S * stride):  # (kernels/work_split.py: the streams on every thread)
+            if slot % stride != 0:
                 continue
-            s = task // TASK_ITEMS
+            s = slot // stride
             nxt = s * chunk
             end = ti.min(nxt + chunk, N)
             cur = Vi(-1)  # each lane's character, -1 for none
@@ -279,10 +280,11 @@ def free_recover(L: int, max_joints: int):
         E = eff_joint.shape[0]
         P = gx.shape[0]
         chunk = (P + n_streams - 1) // n_streams
-        for task in range(n_streams * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
-            if task % TASK_ITEMS != 0:
+        stride = spread_stride(n_streams)
+        for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
+            if slot % stride != 0:
                 continue
-            s = task // TASK_ITEMS
+            s = slot // stride
             for p in range(s * chunk, ti.min(s * chunk + chunk, P)):
                 m = V(0.0)  # lanes whose character iterated
                 rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)

@@ -27,7 +27,7 @@ from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
-from crowd_ik.kernels.work_split import TASK_ITEMS
+from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.kernels.quat import yaw_quat
 
 from crowd_ik.solvers.settings import (
@@ -376,10 +376,11 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         S = n_streams
         chunk = (N + S - 1) // S
-        for task in range(S * TASK_ITEMS):  # a stream per TASK_ITEMS iterations (kernels/work_split.py)
-            if task % TASK_ITEMS != 0:
+        stride = spread_stride(S)
+        for slot in range(S * stride):  # (kernels/work_split.py: the streams on every thread)
+            if slot % stride != 0:
                 continue
-            s = task // TASK_ITEMS
+            s = slot // stride
             nxt = s * chunk
             end = ti.min(nxt + chunk, N)
             cur = Vi(-1)  # each lane's character, -1 for none

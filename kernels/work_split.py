@@ -7,8 +7,8 @@ ti.global_thread_idx() on 2 threads: 16 or 600 iterations of 10 ms each ran on o
 4,000 on 2,000 + 2,000; and a 65,536-iteration loop whose first half held all the work took as long on two
 threads as on one. So:
 
-- a loop over few heavy items (the lane kernels' streams) runs on one thread: it loops over
-  n * TASK_ITEMS iterations and works on every TASK_ITEMS-th (see kernels/fabrik_lanes.py);
+- a loop over few heavy items (the lane kernels' streams, a small crowd's characters) runs on one
+  thread: it loops over n * spread_stride(n) iterations and works on every stride-th;
 - a loop whose work is uneven along its index (image rows: sky at the top, the crowd lower down) leaves
   a thread idle: it visits its items in BANDS interleaved bands (banded_count, banded_item), so every
   thread's block holds the same share of each band of the image.
@@ -17,8 +17,7 @@ Neither changes what an item computes, so results stay the same bit for bit.
 
 import taichi as ti
 
-TASK_ITEMS = 512  # iterations per heavy item: at least one item per thread's block
-SPREAD_ITEMS = 8192  # a per-character loop over fewer characters is spread to this many iterations (16 blocks)
+SPREAD_ITEMS = 8192  # a loop over fewer heavy items is spread to this many iterations (16 threads' blocks)
 BANDS = 16  # bands a banded loop interleaves (a thread's block holds 1/threads of each)
 
 
@@ -37,8 +36,8 @@ def banded_item(k, n):
 
 @ti.func
 def spread_stride(n):
-    """Iterations per item of a loop over n heavy items (one character each): enough that the loop has at
-    least SPREAD_ITEMS iterations, so a few hundred characters still reach every thread; 1 from
+    """Iterations per item of a loop over n heavy items (a stream, a character): enough that the loop has at
+    least SPREAD_ITEMS iterations, so a few items still reach every thread; 1 from
     SPREAD_ITEMS items up (no cost for big crowds). Iteration k works on item k // stride where
     k % stride == 0."""
     return ti.max(1, (SPREAD_ITEMS + n - 1) // ti.max(n, 1))

@@ -1,5 +1,5 @@
 """kernels/work_split.py: banded loops visit every item once, and a loop over few heavy items spread by
-TASK_ITEMS runs on more than one thread (the Taichi behaviour the lane kernels are built around)."""
+spread_stride runs on more than one thread (the Taichi behaviour the lane kernels are built around)."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,7 @@ import pytest
 def kernels():
     import taichi as ti
 
-    from crowd_ik.kernels.work_split import TASK_ITEMS, banded_count, banded_item
+    from crowd_ik.kernels.work_split import banded_count, banded_item, spread_stride
 
     @ti.kernel
     def visit(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1)):
@@ -21,10 +21,11 @@ def kernels():
 
     @ti.kernel
     def threads_of(n: ti.i32, thread: ti.types.ndarray(dtype=ti.i32, ndim=1), out: ti.types.ndarray(ndim=1)):
-        for task in range(n * TASK_ITEMS):
-            if task % TASK_ITEMS != 0:
+        stride = spread_stride(n)
+        for slot in range(n * stride):
+            if slot % stride != 0:
                 continue
-            s = task // TASK_ITEMS
+            s = slot // stride
             thread[s] = ti.global_thread_idx()
             x = 1.0 + 1e-3 * s
             for _ in range(500000):  # (~2 ms: a second thread wakes before the first is done)
@@ -63,7 +64,7 @@ def test_banded_item_interleaves_bands():
         assert set(block[block < n] // q) == set(range(BANDS))
 
 
-def test_few_heavy_items_spread_by_task_items_use_several_threads(kernels):
+def test_few_heavy_items_spread_by_stride_use_several_threads(kernels):
     import taichi as ti
 
     _, threads_of, threads_plain = kernels
@@ -78,8 +79,8 @@ def test_few_heavy_items_spread_by_task_items_use_several_threads(kernels):
         if len(set(spread)) >= 2:
             break
     assert len(set(spread)) >= 2, spread
-    # the reason for TASK_ITEMS: the plain loop's 8 items fall in one block, one thread (if Taichi ever hands
-    # them out one by one, this fails and TASK_ITEMS can go)
+    # the reason for spread_stride: the plain loop's 8 items fall in one block, one thread (if Taichi ever hands
+    # them out one by one, this fails and spread_stride can go)
     assert len(set(plain)) == 1, plain
 
 
