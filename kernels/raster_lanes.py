@@ -1,13 +1,18 @@
-"""The sky and ground behind a row's pixels, sixteen at a time: raster_shade.background_pixel for pixels px0 ..
-px0 + L - 1 of row py, each value one lane of a ``ti.types.vector(L, ti.f32)``, the same bits as the scalar
-function pixel by pixel (its branches become per-lane selects: a lane computes both sides and keeps the one
-the scalar code takes).
+"""Pixels sixteen at a time, each value one lane of a ``ti.types.vector(L, ti.f32)`` (packed SIMD on the CPU):
+- ground_lanes: the sky and ground behind a row's pixels, raster_shade.background_pixel for pixels px0 ..
+  px0 + L - 1 of row py, the same bits as the scalar function pixel by pixel (its branches become per-lane
+  selects: a lane computes both sides and keeps the one the scalar code takes);
+- capsule_hit_lanes: raster_geometry.capsule_hit for a packet of pixel rays (raster_capsules' wide rows) or one
+  ray (its narrow rows), so both kinds of row give a pixel the same formula. It is not bit for bit the scalar
+  capsule_hit: under fast math each compiled copy of it groups some sums its own way (see below), so the
+  golden frames were re-recorded for it (one pixel in 60 arena frames moved one level).
 
-Why it is here: for a camera that moves every frame (the follow camera) shading computes every pixel's ground
+Why: for a camera that moves every frame (the follow camera) shading computes every pixel's ground
 ray, grid and fog, half of the frame's raster CPU in scalar code; in lanes (packed SIMD after LLVM's SLP
-vectoriser) it costs half as much.
+vectoriser) it costs half as much. An arena frame's capsules (1280x720) cost 5 ms to rasterise in packets, 8
+pixel by pixel.
 
-Bit for bit: Taichi's fast math puts `reassoc` on every float operation, and LLVM's reassociation regroups a
+Bit for bit (ground_lanes): Taichi's fast math puts `reassoc` on every float operation, and LLVM's reassociation regroups a
 chain of additions by the values its terms have in common across the chains of a block. In scalar code a
 pixel's ray d = forward focal + right (px - cx) - up (py - cy) is summed as written; with sixteen lanes in one
 block the camera terms forward focal and up (py - cy) are common to all sixteen sums, and LLVM adds them
@@ -15,14 +20,17 @@ first, which changes the last bit of some rays of tilted cameras. The SLP vector
 sum (a dot product, a squared norm) into a vector reduction, in another order. `keep` (a max with -1e30:
 the identity on every value these sums take) ends a chain where the scalar code's grouping must stay, so each
 lane performs the scalar code's operations in its order; tests/test_raster_lanes.py compares the two on random
-tilted cameras.
+tilted cameras. The same chase for capsule_hit_lanes failed: keeping the scalar kernel's code but adding the
+packet branch beside it already moved some depths, because the number of uses of a shared value decides how
+LLVM groups the sums around it.
 """
 
 import taichi as ti
 
-from crowd_ik.kernels.raster_geometry import FOG_DISTANCE, GRID_DARK, line_cover
+from crowd_ik.kernels.raster_geometry import BIG, FOG_DISTANCE, GRID_DARK, line_cover
 
 L = 16  # pixels per packet (one AVX-512 register of float32)
+PACKET_MIN = 8  # a row span narrower than this rasterises pixel by pixel (a packet costs a few scalar pixels)
 V = ti.types.vector(L, ti.f32)
 _FLOOR = -1.0e30
 
@@ -66,3 +74,46 @@ def ground_lanes(cam: ti.template(), px0, py):
     b1 = ti.select(ground, (1.0 - GRID_DARK * grid) * (1.0 - f), ti.sqrt(ti.math.clamp(rd[1], 0.0, 1.0)))
     b2 = ti.select(ground, f, 0.0)
     return b0, b1, b2
+
+
+@ti.func
+def dot_lanes(u, v):
+    """u . v of two 3-lists of scalars or lane vectors."""
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+@ti.func
+def capsule_hit_lanes(d0, right, up, fwd, fx, fy, a, b, r):
+    """raster_geometry.capsule_hit for the rays d0 + right fx - up fy, and each ray's rd . fwd (rd the unit ray):
+    (t, -1 on a miss; rd . fwd). fx is a lane vector of pixel columns (a packet of L pixels) or one column. The
+    scalar function's branches become selects; a masked square root or division sees a harmless operand."""
+    d = [d0[c] + right[c] * fx - up[c] * fy for c in ti.static(range(3))]
+    inv = 1 / ti.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    rd = [inv * d[c] for c in ti.static(range(3))]
+    ba = b - a
+    s = a + b
+    t0 = 0.5 * dot_lanes(s, rd)
+    oa = [rd[c] * t0 - a[c] for c in ti.static(range(3))]
+    ob = [rd[c] * t0 - b[c] for c in ti.static(range(3))]
+    rr = r * r
+    baba = ba.dot(ba)
+    bard = dot_lanes(ba, rd)
+    baoa = dot_lanes(ba, oa)
+    k2 = baba - bard * bard
+    rdoa = dot_lanes(rd, oa)
+    oaoa = dot_lanes(oa, oa)
+    k1 = baba * rdoa - baoa * bard
+    k0 = baba * oaoa - baoa * baoa - rr * baba
+    h = k1 * k1 - k2 * k0
+    side = (k2 > 1e-6 * baba) & (h >= 0.0)
+    t = (-k1 - ti.sqrt(ti.max(h, 0.0))) / ti.select(side, k2, 1.0)
+    y = baoa + t * bard
+    best = ti.select(side & (y > 0.0) & (y < baba) & (t0 + t > 0.0), t, BIG)
+    ha = rdoa * rdoa - (oaoa - rr)
+    ta = ti.select(ha >= 0.0, -rdoa - ti.sqrt(ti.max(ha, 0.0)), BIG)
+    best = ti.select((ta < best) & (t0 + ta > 0.0), ta, best)
+    rdob = dot_lanes(rd, ob)
+    hb = rdob * rdob - (dot_lanes(ob, ob) - rr)
+    tb = ti.select(hb >= 0.0, -rdob - ti.sqrt(ti.max(hb, 0.0)), BIG)
+    best = ti.select((tb < best) & (t0 + tb > 0.0), tb, best)
+    return ti.select(best < BIG, t0 + best, -1.0), dot_lanes(rd, fwd)

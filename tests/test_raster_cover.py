@@ -6,8 +6,8 @@ capsules crossing the near plane.
 
 The depths are compared loosely: under fast math a copy of the same loop in another kernel is compiled with
 other groupings of its sums (here up to ~800 ulps of depth apart, in capsule_hit's quadratic), so it cannot
-be a bitwise oracle. That raster_capsules' keys are the pre-span kernel's bit for bit was checked on
-captured arena, crowd_1k and stress frames with tilted cameras, and the golden frames hold it for play."""
+be a bitwise oracle (and raster_capsules tests wide rows in 16-pixel packets, another grouping again). The golden
+frames pin raster_capsules' keys for play."""
 
 import numpy as np
 import pytest

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from crowd_ik.kernels import raster as kr
+from crowd_ik.kernels.raster_lanes import L as LANES
+from crowd_ik.kernels.raster_lanes import PACKET_MIN
 from crowd_ik.view.render import Camera
 
 
@@ -43,3 +45,42 @@ def test_lane_background_and_fresh_frames_equal_the_scalar_path(seed, width, hei
     assert np.array_equal(bg.view(np.int32), ref_bg.view(np.int32))
     assert np.array_equal(frame, ref_frame)
     assert np.array_equal(depth.view(np.int32), ref_depth.view(np.int32))
+
+
+@pytest.mark.parametrize("seed,width,height", [(4, 320, 180), (5, 202, 122), (6, 96, 64)])
+def test_packet_raster_hits_the_pixels_of_the_pixel_loop(seed, width, height):
+    # raster_capsules tests rows of PACKET_MIN or more pixels LANES at a time (capsule_hit_lanes): the same
+    # pixels hit by the same ids as test_raster_cover's whole-box loop of capsule_hit, depths to float32 rounding
+    from test_raster_cover import _box_keys
+
+    g = np.random.default_rng(seed)
+    cam = _camera(g, width, height)
+    n = 30
+    centre = cam.position + 4.0 * cam.forward  # near the camera: boxes dozens of pixels wide
+    a = (centre + g.normal(0.0, 1.0, (n, 3))).astype(np.float32)
+    b = (a + g.normal(0.0, 0.8, (n, 3))).astype(np.float32)
+    b[::4] = a[::4]  # spheres
+    r = g.uniform(0.05, 0.4, n).astype(np.float32)
+    p = cam.packed()
+    keys = np.zeros((height, width), np.int64)
+    shadow = np.zeros((height // 2, width // 2), np.int32)
+    tiles = np.ones(((height + kr.TILE - 1) // kr.TILE, (width + kr.TILE - 1) // kr.TILE), np.int32)
+    kr.clear_buffers(keys, shadow, tiles)
+    full = keys.copy()
+    kr.raster_capsules(p, a, b, r, n, keys, tiles)
+    _box_keys(p, a, b, r, n, full)
+    ids = keys & 0xFFFFFFFF
+    np.testing.assert_array_equal(ids, full & 0xFFFFFFFF)
+    hit = keys != full.max()
+    assert hit.mean() > 0.2
+    widest = max(_longest_run(row) for row in np.where(hit, ids, -1))
+    assert widest > LANES + PACKET_MIN  # rows wider than a packet: packets and their masked tails are used
+    depth, depth_full = ((k >> 32).astype(np.int32).view(np.float32) for k in (keys, full))
+    np.testing.assert_allclose(depth[hit], depth_full[hit], rtol=2e-4)  # grazing rays: the quadratic cancels
+
+
+def _longest_run(row):
+    """Length of the longest run of one id (not -1) in a row of ids."""
+    starts = np.flatnonzero(np.r_[True, row[1:] != row[:-1]])
+    lengths = np.diff(np.r_[starts, len(row)])
+    return int(lengths[row[starts] >= 0].max(initial=0))
