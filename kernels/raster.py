@@ -38,7 +38,8 @@ Why this shape (see also crowd_ik/render.py):
 - Packets: a row span of PACKET_MIN or more pixels is tested LANES (16) pixels at a time, each pixel one lane
   of a `ti.types.vector(16, ti.f32)` (kernels/raster_lanes.capsule_hit_lanes, packed SIMD on the CPU); a
   narrower span, pixel by pixel with the same function. An arena frame's capsule raster costs 5 ms instead of
-  8 (1280x720, 2 threads); small far capsules (stress_10k) gain nothing and lose nothing.
+  8 (1280x720, 2 threads); small far capsules (stress_10k) gain nothing and lose nothing. `splat_shadows` does
+  the same with texel rows (raster_lanes.shadow_lanes; narrow rows keep shadow_value): 8 ms -> 4.4-5.3.
 - Work split for the cores: Taichi's CPU backend hands out a parallel loop in tasks of at least 512
   iterations, so the image passes loop over (row, SPAN-pixel piece), (row, tile column) or tiles, and
   `raster_capsules` and `splat_shadows` over several items per primitive (each every parts-th row) when there
@@ -81,7 +82,7 @@ from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch
     shade_tiles,
 )
 from crowd_ik.kernels.raster_lanes import L as LANES
-from crowd_ik.kernels.raster_lanes import PACKET_MIN, capsule_hit_lanes
+from crowd_ik.kernels.raster_lanes import PACKET_MIN, capsule_hit_lanes, shadow_lanes
 from crowd_ik.kernels.work_split import banded_count, banded_item
 
 ndarray = ti.types.ndarray
@@ -244,6 +245,14 @@ def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius
 
 
 @ti.func
+def raise_shadow(shadow: ti.template(), py, px, v):
+    """shadow[py, px] := max(shadow[py, px], round(SHADOW_SCALE v)) for a darkness v in 0..1."""
+    level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
+    if level > shadow[py, px]:  # levels only rise
+        ti.atomic_max(shadow[py, px], level)
+
+
+@ti.func
 def lower_key(keys: ti.template(), py, px, z, near, i):
     """keys[py, px] := min(keys[py, px], (bits of view depth z << 32) | i) for a hit at z >= near."""
     if z >= near:
@@ -341,14 +350,22 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
                     x1 = xr[1]
                     if x1 - x0 >= ROW_SPAN_MIN:
                         x0, x1 = shadow_row_span(a, b, r, cam, py, xr[0], xr[1])
-                    for px in range(x0, x1 + 1):
-                        d = d0 + right * (2.0 * px + 0.5) - up * (2.0 * py + 0.5)
-                        if d[1] < 0.0:
-                            g = eye + d * (-eye[1] / d[1])
-                            v = shadow_value(g[0], g[2], a, b, r)
-                            level = ti.cast(v * SHADOW_SCALE + 0.5, ti.i32)
-                            if level > shadow[py, px]:  # levels only rise
-                                ti.atomic_max(shadow[py, px], level)
+                    fy = 2.0 * py + 0.5
+                    if x1 - x0 >= PACKET_MIN:  # LANES texels at a time (kernels/raster_lanes.py)
+                        px0 = x0
+                        while px0 <= x1:
+                            fx = ti.Vector([2.0 * (px0 + k) + 0.5 for k in ti.static(range(LANES))])
+                            v = shadow_lanes(d0, right, up, eye, fx, fy, a, b, r)
+                            for k in ti.static(range(LANES)):
+                                if px0 + k <= x1:
+                                    raise_shadow(shadow, py, px0 + k, v[k])
+                            px0 += LANES
+                    else:
+                        for px in range(x0, x1 + 1):
+                            d = d0 + right * (2.0 * px + 0.5) - up * fy
+                            if d[1] < 0.0:
+                                g = eye + d * (-eye[1] / d[1])
+                                raise_shadow(shadow, py, px, shadow_value(g[0], g[2], a, b, r))
                     py += parts
 
 

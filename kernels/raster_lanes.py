@@ -27,7 +27,9 @@ LLVM groups the sums around it.
 
 import taichi as ti
 
-from crowd_ik.kernels.raster_geometry import BIG, FOG_DISTANCE, GRID_DARK, line_cover
+from crowd_ik.kernels.raster_geometry import (
+    BIG, FOG_DISTANCE, GRID_DARK, SHADOW_DARK, SHADOW_FALLOFF, SHADOW_HEIGHT_WEIGHT, line_cover, shadow_soft,
+)
 
 L = 16  # pixels per packet (one AVX-512 register of float32)
 PACKET_MIN = 8  # a row span narrower than this rasterises pixel by pixel (a packet costs a few scalar pixels)
@@ -117,3 +119,31 @@ def capsule_hit_lanes(d0, right, up, fwd, fx, fy, a, b, r):
     tb = ti.select(hb >= 0.0, -rdob - ti.sqrt(ti.max(hb, 0.0)), BIG)
     best = ti.select((tb < best) & (t0 + tb > 0.0), tb, best)
     return ti.select(best < BIG, t0 + best, -1.0), dot_lanes(rd, fwd)
+
+
+@ti.func
+def shadow_lanes(d0, right, up, eye, fx, fy, a, b, r):
+    """raster_geometry.shadow_value at the ground points seen along d0 + right fx - up fy (fx a lane vector of
+    texel-row sample columns or one column), 0 where the ray does not point down: the darkness of each."""
+    d = [d0[c] + right[c] * fx - up[c] * fy for c in ti.static(range(3))]
+    down = d[1] < 0.0
+    k = -eye[1] / ti.select(down, d[1], -1.0)
+    gx = eye[0] + d[0] * k
+    gz = eye[2] + d[2] * k
+    ha = ti.max(a[1], 0.0)
+    hb = ti.max(b[1], 0.0)
+    w = SHADOW_HEIGHT_WEIGHT
+    ex = b[0] - a[0]
+    ey = w * (hb - ha)
+    ez = b[2] - a[2]
+    ee = ex * ex + ey * ey + ez * ez
+    u = ti.math.clamp(((gx - a[0]) * ex + (-w * ha) * ey + (gz - a[2]) * ez) / ti.max(ee, 1e-12), 0.0, 1.0)
+    if ee <= 1e-12:
+        u = u * 0.0
+    dx = gx - (a[0] + u * ex)
+    dz = gz - (a[2] + u * ez)
+    dd = dx * dx + dz * dz
+    h = ha + u * (hb - ha)
+    s = shadow_soft(h)
+    cover = 1.0 - ti.math.smoothstep(r - s, r + s, ti.sqrt(dd))
+    return ti.select(down & (dd < (r + s) * (r + s)), SHADOW_DARK * ti.exp(-h / SHADOW_FALLOFF) * cover, 0.0)

@@ -8,6 +8,7 @@ import pytest
 from crowd_ik.kernels import raster as kr
 from crowd_ik.kernels.raster_lanes import L as LANES
 from crowd_ik.kernels.raster_lanes import PACKET_MIN
+from crowd_ik.reference import raster as ref
 from crowd_ik.view.render import Camera
 
 
@@ -78,6 +79,27 @@ def test_packet_raster_hits_the_pixels_of_the_pixel_loop(seed, width, height):
     depth, depth_full = ((k >> 32).astype(np.int32).view(np.float32) for k in (keys, full))
     np.testing.assert_allclose(depth[hit], depth_full[hit], rtol=2e-4)  # grazing rays: the quadratic cancels
 
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+def test_packet_shadows_match_the_numpy_twin(seed):
+    # splat_shadows tests texel rows of PACKET_MIN or more LANES at a time (shadow_lanes): the twin's levels to
+    # float32 rounding, on footprints far wider than a packet
+    g = np.random.default_rng(seed)
+    cam = Camera((0.0, 4.0, 5.0), (0.0, 0.0, 0.0), 50.0, 320, 180, up=(g.normal(0.0, 0.2), 1.0, 0.0))
+    n = 12
+    a = g.uniform([-2.0, 0.0, -2.0], [2.0, 1.0, 2.0], (n, 3)).astype(np.float32)
+    b = (a + g.normal(0.0, 0.7, (n, 3))).astype(np.float32)
+    r = g.uniform(0.1, 0.4, n).astype(np.float32)
+    keys = np.zeros((180, 320), np.int64)
+    shadow = np.zeros((90, 160), np.int32)
+    tiles = np.ones(((180 + kr.TILE - 1) // kr.TILE, (320 + kr.TILE - 1) // kr.TILE), np.int32)
+    kr.clear_buffers(keys, shadow, tiles)
+    kr.splat_shadows(cam.packed(), a, b, r, n, shadow, tiles)
+    expect = ref.splat_shadows(cam.packed(), a, b, r, 320, 180)
+    assert max(_longest_run(np.where(row > 0, 0, -1)) for row in expect) > LANES + PACKET_MIN
+    assert np.abs(shadow.astype(np.int64) - expect).max() <= 3  # float32 vs float64 rounding only
+    assert (shadow > 0).sum() > 1000
 
 def _longest_run(row):
     """Length of the longest run of one id (not -1) in a row of ids."""
