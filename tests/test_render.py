@@ -263,13 +263,15 @@ def test_only_drawn_tiles_are_flagged():
     assert len(sy) > 50 and drawn[sy // kr.TILE, sx // kr.TILE].all()
 
 
-def _threads_scene():
-    """A crowded 96x64 frame: (frame, ids, shadow) rendered in this process."""
+def _threads_scene(near=False):
+    """A crowded 96x64 frame, or (near) a 256x160 frame of 60 capsules close to the camera, whose rows are
+    rasterised and shadowed in 16-pixel packets: (frame, ids, shadow) rendered in this process."""
     g = np.random.default_rng(11)
-    a = g.uniform([-3, 0, -3], [3, 2, 3], (2000, 3))
-    b = a + g.normal(0, 0.3, (2000, 3))
-    rend = Renderer(Camera((0.0, 3.0, 7.0), (0.0, 0.5, 0.0), 50.0, 96, 64), 2000, 0)
-    frame = rend.render(a, b, g.uniform(0.02, 0.2, 2000), g.uniform(0, 1, (2000, 3)))
+    n, size, spread, r = (60, (256, 160), 0.6, (0.1, 0.4)) if near else (2000, (96, 64), 0.3, (0.02, 0.2))
+    a = g.uniform([-3, 0, -3], [3, 2, 3], (n, 3))
+    b = a + g.normal(0, spread, (n, 3))
+    rend = Renderer(Camera((0.0, 3.0, 7.0), (0.0, 0.5, 0.0), 50.0, *size), n, 0)
+    frame = rend.render(a, b, g.uniform(*r, n), g.uniform(0, 1, (n, 3)))
     return frame, rend.id_buffer()[0], rend.shadow_buffer()
 
 
@@ -278,22 +280,24 @@ import sys, numpy as np, crowd_ik
 crowd_ik.init(arch="cpu", threads=int(sys.argv[3]))
 sys.path.insert(0, sys.argv[2])
 from test_render import _threads_scene
-frame, ids, shadow = _threads_scene()
+frame, ids, shadow = _threads_scene(sys.argv[4] == "near")
 np.savez(sys.argv[1], frame=frame, ids=ids, shadow=shadow)
 """
 
 
-def test_frame_is_the_same_with_another_thread_count(tmp_path):
+@pytest.mark.parametrize("near", [False, True])
+def test_frame_is_the_same_with_another_thread_count(tmp_path, near):
     import crowd_ik.runtime
 
     other = 2 if crowd_ik.runtime.current().get("threads") == 1 else 1  # this process: all cores
     path = tmp_path / "other.npz"
-    cmd = [sys.executable, "-c", _OTHER_THREADS, str(path), str(Path(__file__).parent), str(other)]
+    cmd = [sys.executable, "-c", _OTHER_THREADS, str(path), str(Path(__file__).parent), str(other),
+           "near" if near else "crowd"]
     subprocess.run(cmd, check=True, capture_output=True)
     theirs = np.load(path)
-    for key, value in zip(("frame", "ids", "shadow"), _threads_scene()):
+    for key, value in zip(("frame", "ids", "shadow"), _threads_scene(near)):
         np.testing.assert_array_equal(theirs[key], value)
-    assert len(np.unique(theirs["ids"])) > 200
+    assert len(np.unique(theirs["ids"])) > (50 if near else 200)
 
 
 def test_load_primitives_copies_the_first_n_rows():
