@@ -184,6 +184,18 @@ def shadow_soft(h):
 
 
 @ti.func
+def shadow_axis(a, b):
+    """The casting segment of shadow_value: end heights (ha, hb) clamped to the ground, the axis (ex, ey, ez)
+    with its height weighted by SHADOW_HEIGHT_WEIGHT, and its squared length ee."""
+    ha = ti.max(a[1], 0.0)
+    hb = ti.max(b[1], 0.0)
+    ex = b[0] - a[0]
+    ey = SHADOW_HEIGHT_WEIGHT * (hb - ha)
+    ez = b[2] - a[2]
+    return ha, hb, ex, ey, ez, ex * ex + ey * ey + ez * ez
+
+
+@ti.func
 def shadow_value(gx, gz, a, b, r):
     """Darkness (0..SHADOW_DARK) that the capsule a-b of radius r casts on ground point (gx, 0, gz).
 
@@ -191,13 +203,8 @@ def shadow_value(gx, gz, a, b, r):
     SHADOW_HEIGHT_WEIGHT (so a standing leg casts from its foot, a level arm from its whole length);
     its height sets the edge softness and the darkness.
     """
-    ha = ti.max(a[1], 0.0)
-    hb = ti.max(b[1], 0.0)
+    ha, hb, ex, ey, ez, ee = shadow_axis(a, b)
     w = SHADOW_HEIGHT_WEIGHT
-    ex = b[0] - a[0]
-    ey = w * (hb - ha)
-    ez = b[2] - a[2]
-    ee = ex * ex + ey * ey + ez * ez
     u = 0.0
     if ee > 1e-12:
         u = ti.math.clamp(((gx - a[0]) * ex + (-w * ha) * ey + (gz - a[2]) * ez) / ee, 0.0, 1.0)

@@ -28,7 +28,8 @@ LLVM groups the sums around it.
 import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (
-    BIG, FOG_DISTANCE, GRID_DARK, SHADOW_DARK, SHADOW_FALLOFF, SHADOW_HEIGHT_WEIGHT, line_cover, shadow_soft,
+    BIG, FOG_DISTANCE, GRID_DARK, SHADOW_DARK, SHADOW_FALLOFF, SHADOW_HEIGHT_WEIGHT, line_cover, shadow_axis,
+    shadow_soft,
 )
 
 L = 16  # pixels per packet (one AVX-512 register of float32)
@@ -130,13 +131,8 @@ def shadow_lanes(d0, right, up, eye, fx, fy, a, b, r):
     k = -eye[1] / ti.select(down, d[1], -1.0)
     gx = eye[0] + d[0] * k
     gz = eye[2] + d[2] * k
-    ha = ti.max(a[1], 0.0)
-    hb = ti.max(b[1], 0.0)
+    ha, hb, ex, ey, ez, ee = shadow_axis(a, b)
     w = SHADOW_HEIGHT_WEIGHT
-    ex = b[0] - a[0]
-    ey = w * (hb - ha)
-    ez = b[2] - a[2]
-    ee = ex * ex + ey * ey + ez * ez
     u = ti.math.clamp(((gx - a[0]) * ex + (-w * ha) * ey + (gz - a[2]) * ez) / ti.max(ee, 1e-12), 0.0, 1.0)
     if ee <= 1e-12:
         u = u * 0.0
