@@ -65,7 +65,9 @@ raster_cover (the row spans), raster_shade (background and per-pixel shading; re
 Bit for bit: fast math puts `reassoc` on every float operation (no contraction: no FMA is emitted), so
 LLVM regroups sums by where their terms come from. Hoisting the camera's reads out of a pixel loop, or
 giving an intermediate value (the ray origin d0) one more use, changed the last bit of some tilted
-cameras' pixels; the code keeps each pixel's expressions and their inputs as they were.
+cameras' pixels. The 16-pixel packets group some sums otherwise again (d0 has 16 uses in a packet), which is
+why the golden frames were re-recorded with them (kernels/raster_lanes.py); a frame is still the same bit for
+bit whatever the thread count, since which rows go through packets depends only on their span.
 """
 
 
