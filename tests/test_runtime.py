@@ -46,3 +46,22 @@ def test_import_creates_no_taichi_state():
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().endswith("{}")
     assert "[Taichi] Starting" not in out.stdout
+
+
+def test_kernel_errors_keep_file_line_and_source_after_the_short_debug_info():
+    # runtime._short_debug_info swaps Taichi's per-node position message (source lines with caret rows, half
+    # of the frontend's time) for file, line, function and the source line
+    crowd_ik.init(arch="cpu")
+    import taichi as ti
+
+    @ti.kernel
+    def broken() -> ti.f32:
+        x = 1.0
+        return x + not_defined_anywhere  # noqa: F821
+
+    with pytest.raises(Exception) as info:
+        broken()
+    text = str(info.value)
+    assert f'File "{__file__}"' in text and "in broken:" in text
+    assert "return x + not_defined_anywhere" in text and "not_defined_anywhere" in text.splitlines()[-1]
+    assert "^" not in text  # Taichi's own message draws carets under the node
