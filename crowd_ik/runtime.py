@@ -2,7 +2,9 @@
 
 Every entry point calls :func:`init` lazily with its defaults; a user may call it first to pick the
 backend, thread count, precision or cache folder. It is idempotent for the same arch, and refuses
-to switch arch once Taichi is running (kernels already compiled for one backend cannot move).
+to switch arch once Taichi is running (kernels already compiled for one backend cannot move). Before
+Taichi starts it shortens the position message Taichi's frontend builds for every AST node
+(_short_debug_info: half of a kernel's first-launch time).
 """
 
 from __future__ import annotations
