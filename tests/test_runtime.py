@@ -65,3 +65,22 @@ def test_kernel_errors_keep_file_line_and_source_after_the_short_debug_info():
     assert f'File "{__file__}"' in text and "in broken:" in text
     assert "return x + not_defined_anywhere" in text and "not_defined_anywhere" in text.splitlines()[-1]
     assert "^" not in text  # Taichi's own message draws carets under the node
+
+
+def test_taichi_reads_a_function_source_once_and_hands_out_copies():
+    # runtime._remembered_sources: Taichi's frontend re-read a ti.func's source at every call site it inlined
+    import inspect
+
+    from taichi.lang import kernel_impl
+
+    crowd_ik.init(arch="cpu")
+    read = kernel_impl.getsourcelines
+    assert getattr(read, "_crowd_ik_remembered", False)
+    first, start = read(_a_function)
+    second, again = read(_a_function)
+    assert (first, start) == tuple(inspect.getsourcelines(_a_function)) and (second, again) == (first, start)
+    assert first is not second  # a copy each time: a caller that edits its list leaves the next one whole
+
+
+def _a_function(x):
+    return x + 1
