@@ -74,9 +74,9 @@ bit whatever the thread count, since which rows go through packets depends only 
 import taichi as ti
 
 from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND: the renderer's too)
-    _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec,
-    dir_origin, effective_radius, empty_key, mark_tiles, pixel_range, primitive_parts, row3, shadow_soft, shadow_value,
-    sphere_bounds,
+    _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, dir_origin,
+    effective_radius, empty_key, mark_tiles, pixel_range, primitive_part, primitive_parts, row3, shadow_soft,
+    shadow_value, sphere_bounds,
 )
 from crowd_ik.kernels.raster_cover import ROW_SPAN_MIN, capsule_row, shadow_row_span
 from crowd_ik.kernels.raster_shade import (  # noqa: F401  (one module to launch from)
@@ -190,11 +190,7 @@ def raster_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius
     width = keys.shape[1]
     parts = primitive_parts(n)
     for item in range(n * parts):
-        i = item
-        part = 0
-        if parts > 1:
-            i = item % n
-            part = item // n
+        i, part = primitive_part(item, n, parts)
         eye = cam_vec(cam, 0)
         right = cam_vec(cam, 3)
         up = cam_vec(cam, 6)
@@ -296,11 +292,7 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
     width = shadow.shape[1]
     parts = primitive_parts(n)
     for item in range(n * parts):
-        i = item
-        part = 0
-        if parts > 1:  # (two integer divisions per item cost a crowd of 200,000 primitives ~1.5 ms)
-            i = item % n
-            part = item // n
+        i, part = primitive_part(item, n, parts)
         eye = cam_vec(cam, 0)
         right = cam_vec(cam, 3)
         up = cam_vec(cam, 6)

@@ -12,8 +12,8 @@ ray, grid and fog, half of the frame's raster CPU in scalar code; in lanes (pack
 vectoriser) it costs half as much. An arena frame's capsules (1280x720) cost 5 ms to rasterise in packets, 8
 pixel by pixel.
 
-Bit for bit (ground_lanes): Taichi's fast math puts `reassoc` on every float operation, and LLVM's reassociation regroups a
-chain of additions by the values its terms have in common across the chains of a block. In scalar code a
+Bit for bit (ground_lanes): Taichi's fast math puts `reassoc` on every float operation, and LLVM's reassociation
+regroups a chain of additions by the values its terms have in common across the chains of a block. In scalar code a
 pixel's ray d = forward focal + right (px - cx) - up (py - cy) is summed as written; with sixteen lanes in one
 block the camera terms forward focal and up (py - cy) are common to all sixteen sums, and LLVM adds them
 first, which changes the last bit of some rays of tilted cameras. The SLP vectoriser also turns a three-term
@@ -27,6 +27,7 @@ LLVM groups the sums around it.
 
 import taichi as ti
 
+from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels.raster_geometry import (
     BIG, FOG_DISTANCE, GRID_DARK, SHADOW_DARK, SHADOW_FALLOFF, SHADOW_HEIGHT_WEIGHT, line_cover, shadow_axis,
     shadow_soft,
@@ -80,31 +81,24 @@ def ground_lanes(cam: ti.template(), px0, py):
 
 
 @ti.func
-def dot_lanes(u, v):
-    """u . v of two 3-lists of scalars or lane vectors."""
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-@ti.func
 def capsule_hit_lanes(d0, right, up, fwd, fx, fy, a, b, r):
-    """raster_geometry.capsule_hit for the rays d0 + right fx - up fy, and each ray's rd . fwd (rd the unit ray):
+    """raster_geometry.capsule_hit for the rays d0 + right fx - up fy (3-vectors as component lists, lane_math's
+    helpers on them), and each ray's rd . fwd (rd the unit ray):
     (t, -1 on a miss; rd . fwd). fx is a lane vector of pixel columns (a packet of L pixels) or one column. The
     scalar function's branches become selects; a masked square root or division sees a harmless operand."""
-    d = [d0[c] + right[c] * fx - up[c] * fy for c in ti.static(range(3))]
-    inv = 1 / ti.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    rd = [inv * d[c] for c in ti.static(range(3))]
+    rd = lm.normalized(*[d0[c] + right[c] * fx - up[c] * fy for c in ti.static(range(3))])
     ba = b - a
     s = a + b
-    t0 = 0.5 * dot_lanes(s, rd)
+    t0 = 0.5 * lm.dot3(*s, *rd)
     oa = [rd[c] * t0 - a[c] for c in ti.static(range(3))]
     ob = [rd[c] * t0 - b[c] for c in ti.static(range(3))]
     rr = r * r
     baba = ba.dot(ba)
-    bard = dot_lanes(ba, rd)
-    baoa = dot_lanes(ba, oa)
+    bard = lm.dot3(*ba, *rd)
+    baoa = lm.dot3(*ba, *oa)
     k2 = baba - bard * bard
-    rdoa = dot_lanes(rd, oa)
-    oaoa = dot_lanes(oa, oa)
+    rdoa = lm.dot3(*rd, *oa)
+    oaoa = lm.dot3(*oa, *oa)
     k1 = baba * rdoa - baoa * bard
     k0 = baba * oaoa - baoa * baoa - rr * baba
     h = k1 * k1 - k2 * k0
@@ -115,11 +109,11 @@ def capsule_hit_lanes(d0, right, up, fwd, fx, fy, a, b, r):
     ha = rdoa * rdoa - (oaoa - rr)
     ta = ti.select(ha >= 0.0, -rdoa - ti.sqrt(ti.max(ha, 0.0)), BIG)
     best = ti.select((ta < best) & (t0 + ta > 0.0), ta, best)
-    rdob = dot_lanes(rd, ob)
-    hb = rdob * rdob - (dot_lanes(ob, ob) - rr)
+    rdob = lm.dot3(*rd, *ob)
+    hb = rdob * rdob - (lm.dot3(*ob, *ob) - rr)
     tb = ti.select(hb >= 0.0, -rdob - ti.sqrt(ti.max(hb, 0.0)), BIG)
     best = ti.select((tb < best) & (t0 + tb > 0.0), tb, best)
-    return ti.select(best < BIG, t0 + best, -1.0), dot_lanes(rd, fwd)
+    return ti.select(best < BIG, t0 + best, -1.0), lm.dot3(*rd, *fwd)
 
 
 @ti.func
