@@ -140,6 +140,22 @@ def test_humanoid_workload_starts_in_limits_with_nearby_targets():
     assert wl.tolerance == pytest.approx(5e-3) and wl.targets.shape == (500, 5, 3)
 
 
+@pytest.mark.parametrize("name", ["chain16", "humanoid"])
+def test_reachable_flags_match_the_crowds_unreachable_status(name):
+    from crowd_ik import Crowd, Status
+
+    wl = workloads.make_workload(name, 200)
+    crowd = Crowd(wl.rig, wl.n, spacing=options.SPACING)
+    positions, yaw = crowd.roots()
+    assert np.allclose(positions, wl.roots) and not np.any(yaw)
+    crowd.set_angles(wl.angles)
+    report = crowd.solve(wl.targets, method="fabrik", max_iterations=1, tolerance=wl.tolerance)
+    reachable = workloads._reachable(wl)
+    assert 0 < reachable.sum() < wl.n or name == "chain16"
+    # a converged character is reachable too, so compare against "not UNREACHABLE"
+    assert np.array_equal(reachable, report.status != Status.UNREACHABLE)
+
+
 def test_crowd_bytes_grow_per_character():
     from crowd_ik import Crowd, Rig
 
