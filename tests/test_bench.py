@@ -169,6 +169,7 @@ def test_baseline_full_cell_and_budget():
     base = baseline.Baseline(repeats=2, budget=30.0)
     assert base.measure("chain16", "fabrik", 30) == 30
     got = base.summary("chain16", "fabrik", 30)
+    assert got["numpy_reachable_rate"] == 1.0 and got["numpy_success_rate_reachable"] == 1.0
     assert got["numpy_n"] == 30 and got["numpy_repeats"] == 2
     assert got["numpy_success_rate"] == 1.0 and got["numpy_solves_per_s"] == pytest.approx(30 / got["numpy_time_s"])
     starved = baseline.Baseline(repeats=3, budget=1e-6)
@@ -178,6 +179,17 @@ def test_baseline_full_cell_and_budget():
     assert starved.measure("chain16", "fabrik", 7000) == options.BASELINE_PROBE
     assert starved.summary("chain16", "fabrik", options.BASELINE_PROBE)["numpy_repeats"] == 1
     assert baseline.Baseline(repeats=1, budget=0.0).measure("chain16", "fabrik", 30) is None
+
+
+def test_baseline_counts_reachable_humanoids_from_the_pelvis():
+    # the humanoid's root joint is ~1 m above its root: measured from the root, none of them was reachable
+    base = baseline.Baseline(repeats=1, budget=1e-6)
+    m = base.measure("humanoid", "fabrik", 1000)
+    got = base.summary("humanoid", "fabrik", m)
+    reachable = workloads._reachable(workloads.make_workload("humanoid", 1000, m))
+    assert 0.1 < got["numpy_reachable_rate"] == np.mean(reachable) < 0.9  # measured 0.28 of the first 100
+    # the converged reachable ones are some of the converged (a target past reach by under the tolerance converges)
+    assert 0 < got["numpy_reachable_rate"] * got["numpy_success_rate_reachable"] <= got["numpy_success_rate"] + 1e-12
 
 
 # ------------------------------------------------------------------------------------------------ end to end

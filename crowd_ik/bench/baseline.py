@@ -90,11 +90,13 @@ class Baseline:
         return m
 
     def summary(self, rig_name: str, solver: str, m: int) -> dict:
-        """NumPy solves/s on the first m characters (best of every run on them) and that run's outcome."""
+        """NumPy solves/s on the first m characters (best of every run on them) and that run's outcome (success among
+        all and among the reachable, by the same rule as Crowd's UNREACHABLE status: workloads._reachable)."""
         runs = self._runs[(rig_name, solver, m)]
         seconds, out = min(runs, key=lambda r: r[0])
         return dict(numpy_solves_per_s=m / seconds, numpy_n=m, numpy_repeats=len(runs), numpy_time_s=seconds,
-                    numpy_success_rate=out["success_rate"], numpy_mean_error=out["mean_error"],
+                    numpy_success_rate=out["success_rate"], numpy_reachable_rate=out["reachable_rate"],
+                    numpy_success_rate_reachable=out["success_rate_reachable"], numpy_mean_error=out["mean_error"],
                     numpy_mean_iterations=out["mean_iterations"])
 
 

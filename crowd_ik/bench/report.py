@@ -111,7 +111,7 @@ def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...], loa
                "compile_s = first call - steady call on a small crowd; the offline kernel cache is on",
                "NumPy baseline: float64 twins in crowd_ik/reference/, one process, timed on numpy_n characters "
                "(the first numpy_n of the same workload) within the per-cell budget",
-               "success = status CONVERGED; reachable = no target beyond its chain's length from the root"],
+               "success = status CONVERGED; reachable = no target beyond its chain's length from the root joint"],
     )
 
 
