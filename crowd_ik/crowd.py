@@ -162,11 +162,8 @@ class Crowd:
     def _set_base(self) -> None:
         """Host copy of the root joints' world positions (they move in a solve only with root_weight): the
         UNREACHABLE test and the free root's sub-base rule read it."""
-        off = self.rig.arrays["offset"][0].astype(np.float64)
-        c, s = np.cos(self.root_yaw), np.sin(self.root_yaw)
         # kept in one buffer: the root shift's launch is prepared on it (crowd_ik/prepared.py)
-        np.copyto(self._base, self.root_pos + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]),
-                                                        -s * off[0] + c * off[2]], -1), casting="same_kind")
+        np.copyto(self._base, self.rig.root_joints(self.root_pos, self.root_yaw), casting="same_kind")
 
     def _roots_moved(self) -> None:
         """After a solve moved root_pos in place (root_weight): what set_roots derives from the roots."""
@@ -363,11 +360,7 @@ class Crowd:
             if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
                 far = np.zeros((left.size, self.rig.n_effectors), bool)
             else:
-                reach = self.__dict__.get("_reach_sq")
-                if reach is None:  # the fixed-root reach test's squared bound, per effector
-                    reach = self._reach_sq = np.square(self.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
-                d = b.targets[left] - self._base[left, None, :]
-                far = np.einsum("nek,nek->ne", d, d) > reach
+                far = self.rig.beyond_reach(b.targets[left], self._base[left])
             status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
                                     np.where(b.stalled[left] != 0, Status.STALLED, Status.MAX_ITERATIONS))
         return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)

@@ -324,6 +324,25 @@ class Rig:
         return np.array([self.bone_lengths[self.path_to_root(e.joint)[:-1]].sum() for e in self.effectors])
 
     @cached_property
+    def reach_bound_sq(self) -> np.ndarray:
+        """(E,) float64: the squared distance from the root joint beyond which a target is out of reach: the
+        reach with a slack for rounding (relative 1e-6, absolute 1e-7 m)."""
+        return np.square(self.reach * (1 + 1e-6) + 1e-7)
+
+    def beyond_reach(self, targets: np.ndarray, base: np.ndarray) -> np.ndarray:
+        """(N, E) bool: each target (N, E, 3) farther from its character's root joint base (N, 3) than its chain
+        reaches (Crowd's UNREACHABLE rule, where the target's weight is positive)."""
+        d = targets - base[:, None, :]
+        return np.einsum("nek,nek->ne", d, d) > self.reach_bound_sq
+
+    def root_joints(self, roots: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+        """(N, 3) float64: the root joints' world positions of characters standing at roots (N, 3) turned by yaw
+        (N,) radians about +y (the root joint sits at the rig's first offset from the root)."""
+        off = self.arrays["offset"][0].astype(np.float64)
+        c, s = np.cos(yaw), np.sin(yaw)
+        return roots + np.stack([c * off[0] + s * off[2], np.full_like(c, off[1]), -s * off[0] + c * off[2]], -1)
+
+    @cached_property
     def arrays(self) -> dict[str, np.ndarray]:
         """The rig as C-contiguous arrays for the kernels (float32 and int32).
 

@@ -101,3 +101,17 @@ def test_numpy_scalars_are_numbers():
                (Effector("x", np.int64(1), np.float32(2.0), axis=(0, 2, 0)),))
     assert tree.joints[1].parent == 0 and type(tree.joints[1].parent) is int
     assert tree.effectors[0].axis == (0.0, 1.0, 0.0)  # stored unit length
+
+
+def test_root_joints_turn_the_first_offset_and_beyond_reach_measures_from_them():
+    rig = Rig((Joint("root", -1, (0.5, 1.0, 0.0)), Joint("a", 0, (1.0, 0.0, 0.0)), Joint("b", 1, (0.0, 2.0, 0.0))))
+    roots = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, -3.0]])
+    base = rig.root_joints(roots, np.array([0.0, np.pi / 2]))
+    # a quarter turn about +y takes +x to -z
+    assert np.allclose(base, [[0.5, 1.0, 0.0], [10.0, 1.0, -3.5]])
+    assert rig.reach == pytest.approx([3.0])
+    up = np.array([0.0, 3.0, 0.0])
+    assert rig.beyond_reach((base + up)[:, None, :], base).tolist() == [[False], [False]]  # at the reach
+    assert rig.beyond_reach((base + 1.001 * up)[:, None, :], base).tolist() == [[True], [True]]
+    # measured from the root instead, the first target would be out of reach
+    assert rig.beyond_reach((base + up)[:, None, :], roots).all()

@@ -100,12 +100,10 @@ def _outcome(error: np.ndarray, iterations: np.ndarray, converged: np.ndarray, r
 
 
 def _reachable(wl: Workload) -> np.ndarray:
-    """(m,) bool: every target within its chain's length of the root joint (Crowd's UNREACHABLE test, negated).
-    The workloads' characters stand unturned, so the root joint is the root plus the rig's first offset (the
-    humanoid's pelvis, ~1 m up; measuring from the root itself counted every humanoid unreachable)."""
-    base = wl.roots.astype(np.float64) + wl.rig.arrays["offset"][0].astype(np.float64)
-    far = np.linalg.norm(wl.targets - base[:, None, :], axis=-1) > wl.rig.reach[None, :] * (1 + 1e-6) + 1e-7
-    return ~np.any(far, axis=1)
+    """(m,) bool: every target within its chain's length of the root joint (Crowd's UNREACHABLE test, negated;
+    the workloads' characters stand unturned, and the humanoid's root joint, its pelvis, is ~1 m above its root)."""
+    return ~np.any(wl.rig.beyond_reach(wl.targets, wl.rig.root_joints(wl.roots.astype(np.float64), np.zeros(wl.n))),
+                   axis=1)
 
 
 def _ms_stats(values_ms) -> dict:

@@ -187,9 +187,7 @@ class _Windows:
         crowd, b = self.crowd, self.crowd.buffers
         if self.req.root_weight is not None:
             return np.ones(crowd.n, bool)
-        d = b.targets - crowd._base[:, None, :]
-        far = np.einsum("nek,nek->ne", d, d) > np.square(crowd.rig.reach[None, :] * (1 + 1e-6) + 1e-7)
-        return ~np.any(far & (weights > 0), axis=1)
+        return ~np.any(crowd.rig.beyond_reach(b.targets, crowd._base) & (weights > 0), axis=1)
 
     def _read(self, rotations, idx: np.ndarray) -> np.ndarray:
         """(K, D) angles of the characters idx (K,) from rotations (N, J) (the crowd's, or the saved ones)."""
