@@ -1,5 +1,5 @@
 """FABRIK with joint limits (hinge, universal, ball with cone and box) with many characters per CPU thread as
-SIMD lanes: kernels/fabrik.py's fabrik_solve (recover_each_iteration 1, no orientation targets) per lane.
+SIMD lanes: kernels/fabrik.py's fabrik_solve (recover_each_iteration 1, no rotation targets) per lane.
 
 As kernels/fabrik_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L,
 ti.f32)``; S streams, each a contiguous range of characters whose lanes refill (a lane whose character
@@ -7,7 +7,8 @@ converged, stalled or ran out of iterations writes its result and takes the stre
 the streams' state lives in fields of compile-time shape. Each iteration is the backward and forward
 passes of fabrik_lanes, then the topological sweep of fabrik.recover_and_constrain: FK, each active joint's
 rotation recovered from the proposals (the hinge's best angle, the ball joint's swing rounds, the closed-form
-two-bone limb, the twist for a hinge child) and clamped (kernels/lane_limits.py).
+two-bone limb, the twist for a hinge child, an orientation target's turn: kernels/lane_align.py) and clamped
+(kernels/lane_limits.py).
 
 Which joints are active (some positively weighted effector below them) is the same for every character
 (``active``, from the host): the rig's structure decides the branches as scalars, and only what depends on a
@@ -23,12 +24,13 @@ depend on a character's lane-mates (bit for bit: tests/test_fabrik_lanes.py).
 import functools
 
 import taichi as ti
+from crowd_ik.kernels import lane_align as la
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.kernels.work_split import spread_stride
-from crowd_ik.kernels.quat import yaw_quat
+from crowd_ik.kernels.quat import qrot, yaw_quat
 
 from crowd_ik.solvers.settings import (
     FABRIK_FLAT as FLAT,
@@ -51,13 +53,13 @@ vec4 = ti.math.vec4
 def limited_solver(L: int, max_joints: int, max_effectors: int):
     """The kernel for L lanes per stream and scratch of max_joints and max_effectors rows per stream: f* (world
     positions), r* (world rotations), l* (local rotations), w*, aw (proposals and their weights), t* (targets),
-    o*, y* (root position and yaw rotation, one row per stream)."""
+    d* (orientation targets), o*, y* (root position and yaw rotation, one row per stream)."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     J_, E_ = (MAX_STREAMS, max_joints), (MAX_STREAMS, max_effectors)
     fx, fy, fz, rx, ry, rz, rw, lx, ly, lz, lw, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=J_)
                                                                   for _ in range(15))
-    tx, ty, tz, tw = (ti.Vector.field(L, ti.f32, shape=E_) for _ in range(4))
+    tx, ty, tz, tw, dx, dy, dz = (ti.Vector.field(L, ti.f32, shape=E_) for _ in range(7))
     ox, oy, oz, yx, yy, yz, yw = (ti.Vector.field(L, ti.f32, shape=MAX_STREAMS) for _ in range(7))
 
     @ti.func
@@ -242,7 +244,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
     def sweep(s, on, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
               lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
               dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
-              active: ti.template()):
+              active: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), use_orient):
         """fabrik.recover_and_constrain per lane: rotations from the proposals, clamped, then FK."""
         for j in range(parent.shape[0]):
             p = parent[j]
@@ -310,6 +312,17 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                                                                    child_start, child_list, active)
                         qx, qy, qz, qw = ti.select(free, hx, qx), ti.select(free, hy, qy), ti.select(free, hz, qz), \
                             ti.select(free, hw, qw)
+                # an orientation target on this joint's effector overrides the swing of its local axis
+                for e in range(eff_joint.shape[0] if use_orient else 0):
+                    if eff_joint[e] == j:
+                        has = on & (tw[s, e] > 0.0) & (dx[s, e] * dx[s, e] + dy[s, e] * dy[s, e] + dz[s, e] * dz[s, e]
+                                                       > 0.0)
+                        if lm.any_lane(has):
+                            gx, gy, gz = lm.qrot(ix, iy, iz, iw, dx[s, e], dy[s, e], dz[s, e])
+                            hx, hy, hz, hw = la.align_axis(k, axes[j, 0], axes[j, 1], qx, qy, qz, qw, eff_axis[e],
+                                                           gx, gy, gz)
+                            qx, qy, qz, qw = ti.select(has, hx, qx), ti.select(has, hy, qy), ti.select(has, hz, qz), \
+                                ti.select(has, hw, qw)
                 d = dof_start[j]
                 if k == 1:
                     qx, qy, qz, qw = lim.constrain_hinge(qx, qy, qz, qw, axes[j, 0], lo, hi, lim_p, d, on)
@@ -355,22 +368,36 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
             err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
         return err
 
+    @ti.func
+    def lane_turn(s, eff_joint: ti.template(), eff_axis: ti.template()):
+        """fabrik.orientation_error per lane: max over effectors with an orientation target of 1 - cos(angle
+        between its axis and the target)."""
+        turn = V(0.0)
+        for e in range(eff_joint.shape[0]):
+            k = eff_joint[e]
+            a = eff_axis[e]
+            has = (tw[s, e] > 0.0) & (dx[s, e] * dx[s, e] + dy[s, e] * dy[s, e] + dz[s, e] * dz[s, e] > 0.0)
+            cx, cy, cz = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
+            turn = ti.select(has, ti.max(turn, 1.0 - lm.dot3(cx, cy, cz, dx[s, e], dy[s, e], dz[s, e])), turn)
+        return turn
+
     @ti.kernel
     def solve(
         parent: ndarray(dtype=ti.i32, ndim=1), offset: ndarray(dtype=vec3, ndim=1), kind: ndarray(dtype=ti.i32, ndim=1),
         axes: ndarray(dtype=vec3, ndim=2), lo: ndarray(ndim=1), hi: ndarray(ndim=1), lim_p: ndarray(ndim=2),
         cone: ndarray(ndim=1), dof_start: ndarray(dtype=ti.i32, ndim=1), child_start: ndarray(dtype=ti.i32, ndim=1),
         child_list: ndarray(dtype=ti.i32, ndim=1), eff_joint: ndarray(dtype=ti.i32, ndim=1),
-        bone: ndarray(dtype=vec4, ndim=1), active: ndarray(dtype=ti.i32, ndim=1),
+        eff_axis: ndarray(dtype=vec3, ndim=1), bone: ndarray(dtype=vec4, ndim=1), active: ndarray(dtype=ti.i32, ndim=1),
         root_pos: ndarray(dtype=vec3, ndim=1), root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2),
         world_pos: ndarray(dtype=vec3, ndim=2), world_rot: ndarray(dtype=vec4, ndim=2),
-        targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2), n_streams: ti.i32, max_iterations: ti.i32,
+        targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2), orient: ndarray(dtype=vec3, ndim=2),
+        use_orient: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
         tolerance: ti.f32, error: ndarray(ndim=1), iterations: ndarray(dtype=ti.i32, ndim=1),
         stalled: ndarray(dtype=ti.i32, ndim=1),
     ):
-        """Solve the N = root_pos.shape[0] characters in place, as fabrik_solve(recover_each_iteration=1,
-        use_orient=0); active (J,) 1 where a positively weighted effector lies at or below the joint, the same
-        for every character."""
+        """Solve the N = root_pos.shape[0] characters in place, as fabrik_solve(recover_each_iteration=1) without
+        rotation targets; active (J,) 1 where a positively weighted effector lies at or below the joint, the same
+        for every character; orient (N, E, 3) unit directions or zero, read only when use_orient is 1."""
         N = root_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
@@ -386,6 +413,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
             cur = Vi(-1)  # each lane's character, -1 for none
             live = V(0.0)
             err = V(0.0)
+            turn = V(0.0)
             it = V(0.0)
             flat = V(0.0)
             pending = V(1.0)  # lanes to hand their character's result out and take the next one
@@ -407,13 +435,20 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             i = nxt
                             nxt += 1
                             e0 = 0.0
+                            t0 = 0.0
                             for e in range(E):
                                 v = targets[i, e]
                                 w = weights[i, e]
                                 tx[s, e][l], ty[s, e][l], tz[s, e][l], tw[s, e][l] = v.x, v.y, v.z, w
                                 if w > 0.0:
                                     e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
-                            if max_iterations > 0 and e0 > tolerance:
+                                o = vec3(0.0)
+                                if use_orient:
+                                    o = orient[i, e]
+                                    if w > 0.0 and o.norm_sqr() > 0.0:  # fabrik.orientation_error
+                                        t0 = ti.max(t0, 1.0 - qrot(world_rot[i, eff_joint[e]], eff_axis[e]).dot(o))
+                                dx[s, e][l], dy[s, e][l], dz[s, e][l] = o.x, o.y, o.z
+                            if max_iterations > 0 and (e0 > tolerance or t0 > 1e-6):
                                 for j in range(J):
                                     v = world_pos[i, j]
                                     fx[s, j][l], fy[s, j][l], fz[s, j][l] = v.x, v.y, v.z
@@ -426,6 +461,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                                 cur[l] = i
                                 live[l] = 1.0
                                 err[l] = e0
+                                turn[l] = t0
                                 it[l] = 0.0
                                 flat[l] = 0.0
                             else:
@@ -472,13 +508,19 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                         wy[s, j] = ti.select(on, by + b.w * uy, wy[s, j])
                         wz[s, j] = ti.select(on, bz + b.w * uz, wz[s, j])
                     sweep(s, going, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
-                          child_list, active)
+                          child_list, active, eff_joint, eff_axis, use_orient)
                     new_err = lane_error(s, eff_joint)
+                    new_turn = V(0.0)
+                    if use_orient:
+                        new_turn = lane_turn(s, eff_joint, eff_axis)
                     it = it + live
-                    flat = ti.select(going, ti.select(new_err > err * (1.0 - FLAT), flat + 1.0, 0.0), flat)
+                    # stalled: four updates in a row that improved neither error by one part in a million
+                    flat_now = (new_err > err * (1.0 - FLAT)) & (new_turn >= turn * (1.0 - FLAT))
+                    flat = ti.select(going, ti.select(flat_now, flat + 1.0, 0.0), flat)
                     err = ti.select(going, new_err, err)
+                    turn = ti.select(going, new_turn, turn)
                     done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
-                                    | (err <= tolerance))
+                                    | ((err <= tolerance) & (turn <= 1e-6)))
                     pending = ti.select(done, 1.0, 0.0)
                     live = ti.select(done, 0.0, live)
 

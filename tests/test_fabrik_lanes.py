@@ -22,9 +22,9 @@ def limited_lanes_on(monkeypatch):
     assert settings.limited_lanes() > 1
 
 
-def _solve_both(monkeypatch, crowd_factory, frames):
+def _solve_both(monkeypatch, crowd_factory, frames, orientations=None):
     """Run the frames (targets, max_iterations, tolerance[, poles]) on two crowds: the lane kernel and the general
-    one."""
+    one, with the orientation targets (or none) in every frame."""
     orig = adapter._lane_active
     out = []
     for lanes in (True, False):
@@ -33,7 +33,7 @@ def _solve_both(monkeypatch, crowd_factory, frames):
         got = []
         for targets, iterations, tolerance, *poles in frames:
             rep = crowd.solve(targets, method="fabrik", max_iterations=iterations, tolerance=tolerance,
-                              poles=poles[0] if poles else None)
+                              poles=poles[0] if poles else None, orientations=orientations)
             got.append((rep, crowd.joint_positions(), crowd.rotations()))
         out.append(got)
     monkeypatch.setattr(adapter, "_lane_active", orig)
@@ -57,10 +57,12 @@ def _check_same(a_frames, b_frames, pose_atol=1e-4, pose_max=5e-3, plateau_swaps
         np.testing.assert_allclose(a.error, b.error, atol=pose_max)
 
 
-@pytest.mark.parametrize("poles", [False, True], ids=["plain", "arm_poles"])
-def test_limited_humanoid_game_frames_equal_the_per_character_kernel(monkeypatch, poles):
+@pytest.mark.parametrize("poles,flat_feet", [(False, False), (True, False), (True, True)],
+                         ids=["plain", "arm_poles", "arm_poles_flat_feet"])
+def test_limited_humanoid_game_frames_equal_the_per_character_kernel(monkeypatch, poles, flat_feet):
     """The bench's game cell in small: a cold solve, then warm 4-iteration frames with hands and head moving; with
-    the game's elbow poles (game/arm_poles.py) as the game passes them."""
+    the game's elbow poles (game/arm_poles.py) as the game passes them; with the game's orientation targets (the
+    soles kept flat: game/body.py's orient on the ankles, universal joints) as well."""
     from crowd_ik.bench import workloads as w
     from crowd_ik.game.arm_poles import ArmPoles
     from crowd_ik.game.body import Body
@@ -77,8 +79,25 @@ def test_limited_humanoid_game_frames_equal_the_per_character_kernel(monkeypatch
     frames = [(wl.targets, 100, wl.tolerance, *extra)] + [
         (wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0)), 4, wl.tolerance, *extra)
         for f in range(3)]
-    a, b = _solve_both(monkeypatch, lambda: cik.Crowd(wl.rig, n, spacing=w.SPACING), frames)
+    orient = None
+    if flat_feet:
+        orient = np.ascontiguousarray(np.broadcast_to(Body(wl.rig).orient, (n, wl.rig.n_effectors, 3)))
+        assert np.count_nonzero(orient.any(axis=2)[0]) == 2
+    a, b = _solve_both(monkeypatch, lambda: cik.Crowd(wl.rig, n, spacing=w.SPACING), frames, orient)
     _check_same(a, b)
+    if flat_feet:  # a converged character's soles are flat: 1 - cos(ankle axis, up) within the 1e-6 it stops at
+        from crowd_ik.geometry.fk import forward_kinematics
+        from crowd_ik.geometry.quat import qrot
+
+        rep, _, rot = a[-1]
+        on = orient.any(axis=2)[0]
+        roots, yaw = cik.Crowd(wl.rig, n, spacing=w.SPACING).roots()
+        _, wrot = forward_kinematics(wl.rig, roots.astype(np.float64), yaw, rot.astype(np.float64))
+        axis = qrot(wrot[:, wl.rig.arrays["eff_joint"][on]],
+                    np.broadcast_to(wl.rig.arrays["eff_axis"][on].astype(np.float64), (n, 2, 3)))
+        turn = (1.0 - np.sum(axis * orient[:, on], axis=-1)).max(axis=1)
+        done = rep.status == Status.CONVERGED
+        assert done.sum() > n // 4 and turn[done].max() < 2e-6
     rep = a[0][0]
     assert np.mean(rep.status == Status.CONVERGED) > 0.95
     assert np.any(a[-1][0].iterations == 4) and np.any(a[-1][0].iterations < 4)
@@ -154,9 +173,9 @@ def test_limited_lanes_identical_characters_get_identical_poses_in_every_lane():
 
 
 def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
-    """Lanes for plain position targets with one weight pattern for every character that weights any, with or
-    without poles; the general kernel for orientation targets or weights that switch an effector off for some
-    characters only."""
+    """Lanes for position targets with one weight pattern for every character that weights any, with or without
+    poles or orientation targets; the general kernel for rotation targets or weights that switch an effector off
+    for some characters only."""
     h = cik.Rig.humanoid()
     crowd = cik.Crowd(h, 8)
     targets = crowd.joint_positions()[:, h.arrays["eff_joint"]] + 0.01
@@ -167,7 +186,10 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
         seen.append(orig(c, req))
         return seen[-1]
 
+    lane_solves = []
+    orig_limited = adapter._limited
     adapter._lane_active = spy
+    adapter._limited = lambda *a: (lane_solves.append(1), orig_limited(*a))
     try:
         crowd.solve(targets, method="fabrik", max_iterations=2)
         w = np.ones((8, h.n_effectors), np.float32)
@@ -182,10 +204,21 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
         crowd.solve(targets, method="fabrik", max_iterations=2, weights=w)
         orient = np.full((8, h.n_effectors, 3), np.nan, np.float32)
         orient[:, 3] = (0.0, 1.0, 0.0)
-        crowd.solve(targets, method="fabrik", max_iterations=2, orientations=orient)
+        crowd.solve(targets, method="fabrik", max_iterations=2, orientations=orient)  # orientations: still lanes
+        turned = crowd.world_rotations()[:, h.arrays["eff_joint"][3]].copy()
+        rots = np.full((8, h.n_effectors, 4), np.nan, np.float32)
+        rots[:, 3] = (0.0, 0.0, 0.0, 1.0)
+        before = len(lane_solves)
+        crowd.solve(targets, method="fabrik", max_iterations=2, rotations=rots)  # rotation targets: general
+        assert len(lane_solves) == before
     finally:
         adapter._lane_active = orig
+        adapter._limited = orig_limited
     assert seen[0] is not None and seen[0].sum() == h.n_joints - 2  # all but the toes, below the ankle effectors
     assert seen[1] is not None and seen[1][h.arrays["eff_joint"][0]] == 0 and seen[1][0] == 1
     assert seen[2] is not None and np.array_equal(seen[2], seen[1]) and seen[3] is not None
-    assert seen[4] is None and seen[5] is None
+    assert seen[4] is None and seen[5] is not None and len(lane_solves) == 5
+    from crowd_ik.geometry.quat import qrot
+
+    up = qrot(turned.astype(np.float64), np.broadcast_to(h.arrays["eff_axis"][3].astype(np.float64), (8, 3)))
+    assert np.all(up[:, 1] > 0.9), up  # the orientation targets were applied

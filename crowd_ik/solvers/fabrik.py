@@ -37,12 +37,12 @@ def solve(crowd, req) -> None:
 
 def _lane_active(crowd, req):
     """The joints' activity (J,) int32 when the limited lane kernel reproduces this request: CPU lanes switched on
-    (settings.limited_lanes), no orientation or rotation targets, and the same effectors positively weighted for
+    (settings.limited_lanes), no rotation targets (orientation targets are fine), and the same effectors positively weighted for
     every character that weights any (a game's and the bench's requests; solvers/fabrik_restart.py's windows,
     which give the characters that are done zero weights: those do no iterations in either kernel); else None.
     Poles are fine: solvers/poles.py swivels the limbs after whichever kernel solved."""
     b = crowd.buffers
-    if settings.limited_lanes() <= 1 or not b.orient_zero or req.rotations is not None:
+    if settings.limited_lanes() <= 1 or req.rotations is not None:
         return None
     on = b.weights > 0.0
     rows = on.any(axis=1)
@@ -76,8 +76,8 @@ def _limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -
     ra, L = crowd.rig_arrays, settings.limited_lanes()
     prepared(fabrik_limited_lanes.limited_solver(L, lane_plan.capacity(crowd.rig.n_joints),
                                                  lane_plan.capacity(crowd.rig.n_effectors)))(
-        *bundles.limited_rig(crowd)[:12], ra["bone"], active, *bundles.pose(crowd),
-        *bundles.goal(crowd, orientations=False), lane_plan.streams(crowd.n, L), max_iterations, tolerance,
+        *bundles.limited_rig(crowd), ra["bone"], active, *bundles.pose(crowd), *bundles.goal(crowd),
+        int(not crowd.buffers.orient_zero), lane_plan.streams(crowd.n, L), max_iterations, tolerance,
         *bundles.result(crowd),
     )
 
