@@ -1,11 +1,12 @@
 """FABRIK for a Crowd: which kernel solves a request, and its launch.
 
 A constraint-free rig without orientation targets runs the lane kernels (solvers/fabrik_free.py, kernels/fabrik_lanes.py:
-characters as SIMD lanes, then the rotations recovered in a second pass). With CROWD_IK_LIMITED_LANES=1 a
-joint-limited rig whose characters all weight the same effectors (or none), without orientation or rotation
-targets, runs kernels/fabrik_limited_lanes.py (settings.limited_lanes says why it is off by default);
-everything else, and CUDA (one lane), the general one-character-per-thread kernel (kernels/fabrik.py), which also
-solves full rotation targets (kernels/fabrik_rotation.py).
+characters as SIMD lanes, then the rotations recovered in a second pass). Any other rig whose characters all
+weight the same effectors (or none), with or without orientation targets, runs kernels/fabrik_limited_lanes.py
+(settings.limited_lanes: how closely it agrees with the general kernel; CROWD_IK_LIMITED_LANES=0 turns it off);
+everything else (rotation targets, weights that differ in which effectors they switch off), and CUDA (one lane),
+the general one-character-per-thread kernel (kernels/fabrik.py), which also solves full rotation targets
+(kernels/fabrik_rotation.py).
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ iterations, as without windows. Every character keeps the pose with the lowest e
 every update applied, restarts and jumps included, never more than max_iterations; STALLED means the last attempt
 stopped improving (or gave up), MAX_ITERATIONS that it was still improving when the clock ran out. Solves of at
 most WINDOW iterations (the game's warm 4-iteration frames), rigs without limits, and solves with orientation or
-rotation targets are solvers/fabrik.solve unchanged (with CROWD_IK_LIMITED_LANES=1 too: the windows always run the
-one-character kernel).
+rotation targets are solvers/fabrik.solve unchanged (which may run them on the limited lanes); the windows always
+run the one-character kernel.
 """
 
 from __future__ import annotations

@@ -132,13 +132,13 @@ LIMITED_LANES_MAX = 8  # kernels/fabrik_limited_lanes.py's width at most: its IR
 
 def limited_lanes() -> int:
     """The lane width of the joint-limited FABRIK lanes: lanes(), at most LIMITED_LANES_MAX; 0 (the general
-    kernel) unless CROWD_IK_LIMITED_LANES=1. Off by default, for two reasons measured on the bench's game
-    workload: against the one-character kernel, 10,000 humanoids, a cold 100-iteration solve gives the same
-    status for all but the same iteration count for only 98.7 % (issue 13 asks 99 %) and poses within 1e-4 m
-    for 93 % (after 23 warm 4-iteration frames 64 %, p99 1.6 mm: float32 rounding in another order grows on
-    limits and nearly straight limbs); and its cold compile (40 s of CPU at 8 lanes) is over the bench's 20 s
-    per kernel. Batch == one at a time holds bit for bit since the limb trigonometry is element-wise
-    (kernels/lane_trig.py), and identical characters agree in every lane (tests/test_fabrik_lanes.py)."""
-    if os.environ.get("CROWD_IK_LIMITED_LANES", "0") != "1":
+    kernel everywhere) with CROWD_IK_LIMITED_LANES=0. Against the one-character kernel, per solve from the same
+    start (the game's warm 4-iteration frames on 10,000 humanoids, with and without the soles' orientation
+    targets): statuses the same for >= 99.93 %, iteration counts for >= 99.96 %, poses within 1e-4 m for
+    >= 99.2 % (p99 < 1e-4 m; float32 rounding in another order, which limits and nearly straight limbs amplify).
+    Batch == one at a time holds bit for bit (the limb trigonometry is element-wise, kernels/lane_trig.py). Its
+    cold compile at 8 lanes is less than the one-character kernel's, which the game then no longer needs
+    (crowd-ik play cold, 2 cores: 76 s of CPU instead of 119 s)."""
+    if os.environ.get("CROWD_IK_LIMITED_LANES", "1") == "0":
         return 0
     return min(lanes(), LIMITED_LANES_MAX)
