@@ -22,6 +22,8 @@ from collections import OrderedDict
 
 import numpy as np
 
+from crowd_ik.kernels.cfg_passes import cfg_passes
+
 CONTEXTS = 8  # launch contexts kept per kernel (the game alternates a few array sets: two limb poses, exports)
 
 
@@ -119,7 +121,9 @@ class Prepared:
         instance, _ = primal.mapper.lookup(args)
         t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
         prog = impl.get_runtime().prog
-        data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
+        with cfg_passes(getattr(self.kernel, "cfg_optimization", prog.config().cfg_optimization)):
+            # the compiled kernel the ordinary call launched (kernels/cfg_passes.py: the setting is part of its key)
+            data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
         self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
         while len(self._contexts) > CONTEXTS:
             self._contexts.popitem(last=False)

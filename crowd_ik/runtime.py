@@ -142,6 +142,10 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         default_fp=ti.f64 if fp == 64 else ti.f32,
         offline_cache=True,
         log_level=ti.WARN,
+        # Taichi's control-flow-graph passes: most of a big kernel's cold compile, and LLVM does their work after
+        # them; off, except for the kernels kernels/cfg_passes.py marks (the raster's). CROWD_IK_TAICHI_CFG_OPT=1
+        # turns them on everywhere (to compare)
+        cfg_optimization=os.environ.get("CROWD_IK_TAICHI_CFG_OPT", "0") == "1",
     )
     if cache_dir is not None:
         kwargs["offline_cache_file_path"] = str(cache_dir)

@@ -73,6 +73,7 @@ bit whatever the thread count, since which rows go through packets depends only 
 
 import taichi as ti
 
+from crowd_ik.kernels.cfg_passes import with_cfg_passes
 from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND: the renderer's too)
     _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, dir_origin,
     effective_radius, empty_key, mark_tiles, pixel_range, primitive_part, primitive_parts, row3, shadow_soft,
@@ -95,6 +96,7 @@ SHADE_FRESH = 1
 SHADE_FILL = 2
 
 
+@with_cfg_passes
 @ti.kernel
 def clear_buffers(keys: ndarray(dtype=ti.i64, ndim=2), shadow: ndarray(dtype=ti.i32, ndim=2),
                   tiles: ndarray(dtype=ti.i32, ndim=2)):
@@ -135,6 +137,7 @@ def clear_tiles(keys: ti.template(), shadow: ti.template(), tiles: ti.template()
         tiles[ty, tx] = (flags & 1) << 1
 
 
+@with_cfg_passes
 @ti.kernel
 def load_primitives(
     src_a: ndarray(dtype=ti.f32, ndim=2),
@@ -164,6 +167,7 @@ def load_rows(src_a: ti.template(), src_b: ti.template(), src_r: ti.template(), 
         radius[i] = src_r[i]
 
 
+@with_cfg_passes
 @ti.kernel
 def raster_capsules(
     cam: ndarray(dtype=ti.f32, ndim=1),
@@ -266,6 +270,7 @@ def project_ground(p, eye, right, up, fwd, focal, cx, cy):
     return ti.Vector([cx + focal * q.dot(right) / z, cy - focal * q.dot(up) / z])
 
 
+@with_cfg_passes
 @ti.kernel
 def splat_shadows(
     cam: ndarray(dtype=ti.f32, ndim=1),
@@ -363,6 +368,7 @@ def splat_loop(cam: ti.template(), pa: ti.template(), pb: ti.template(), radius:
                     py += parts
 
 
+@with_cfg_passes
 @ti.kernel
 def draw_frame(
     cam: ndarray(dtype=ti.f32, ndim=1),

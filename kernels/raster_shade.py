@@ -5,6 +5,7 @@ with its bilinearly sampled soft shadows and fog."""
 
 import taichi as ti
 
+from crowd_ik.kernels.cfg_passes import with_cfg_passes
 from crowd_ik.kernels.raster_geometry import (
     AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LIGHT_X,
     LIGHT_Y, LIGHT_Z, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPAN, SPECULAR, TILE, cam_vec,
@@ -140,6 +141,7 @@ def background_span(cam: ti.template(), background: ti.template(), py, x0, x1):
         background[py, px, 2] = b2
 
 
+@with_cfg_passes
 @ti.kernel
 def shade_background(cam: ndarray(dtype=ti.f32, ndim=1), background: ndarray(dtype=ti.f32, ndim=3)):
     """What every pixel shows when no primitive covers it, for this camera: background (H, W, 3)
@@ -187,6 +189,7 @@ def shade_pixel(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
     depth[py, px] = seen
 
 
+@with_cfg_passes
 @ti.kernel
 def shade_frame(
     cam: ndarray(dtype=ti.f32, ndim=1),
@@ -231,6 +234,7 @@ def shade_tiles(cam: ti.template(), pa: ti.template(), pb: ti.template(), color:
                             background[py, px, 0], background[py, px, 1], background[py, px, 2])
 
 
+@with_cfg_passes
 @ti.kernel
 def shade_frame_background(
     cam: ndarray(dtype=ti.f32, ndim=1),
@@ -272,6 +276,7 @@ def shade_all(cam: ti.template(), pa: ti.template(), pb: ti.template(), color: t
                         background[py, px, 0], background[py, px, 1], background[py, px, 2])
 
 
+@with_cfg_passes
 @ti.kernel
 def shade_frame_fresh(
     cam: ndarray(dtype=ti.f32, ndim=1),
