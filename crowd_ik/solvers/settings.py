@@ -127,7 +127,8 @@ def lanes() -> int:
 LIMITED_LANES_MAX = 8  # kernels/fabrik_limited_lanes.py's width at most: its IR, and compile time, grow with the width
 # (Taichi scalarises lane vectors; humanoid, cold, 2-core machine: 4 lanes 26-37 s of CPU, 8 lanes 40 s, 16 lanes
 # 140 s). With the limb trigonometry element-wise (kernels/lane_trig.py) 8 lanes pay: warm 10,000-humanoid game
-# solve 66.0 -> 37.5 ms against libm's calls at 8 lanes (which ran no faster than 4)
+# solve 66.0 -> 37.5 ms against libm's calls at 8 lanes (which ran no faster than 4). Without Taichi's CFG passes
+# (docs/ARCHITECTURE.md "Compile time"): 8 lanes 14.7 s, 16 lanes 35.8 s for a warm solve 10 % faster
 
 
 def limited_lanes() -> int:
