@@ -204,6 +204,25 @@ def test_fused_advance_equals_the_phase_kernels():
         np.testing.assert_array_equal(x, y)
 
 
+def test_a_finer_limb_grid_finds_the_same_hits_and_leaves_the_threat_grid_alone():
+    # the grid is only a broad phase: with limbs that do not move (one sub-step) every cell size gives the same
+    # hits, bit for bit; limb_cell_size sets the limbs' grid only
+    start, end, a, b, radius, owner, char_alive = _scene(17, p=200)
+    vel = _f32((end - start) * 60.0)
+    boxes = _owner_boxes(a, b, a, b, radius, owner, len(char_alive))
+    runs = []
+    for limb_cell in (None, 0.25):
+        pool = BulletPool(len(start), bounds=(-5, -5, 5, 5), cell_size=1.0, limb_cell_size=limb_cell)
+        assert pool.threat_grid.cell == 1.0 and pool.limb_grid.cell == (limb_cell or 1.0)
+        pool.spawn(start, vel)
+        hits = pool.advance(DT, 9.81, 0.01, 3.0, a, b, radius, owner, char_alive, len(char_alive), owner_boxes=boxes,
+                            owner_stride=4)
+        runs.append((hits, pool.struck(), pool.alive_mask()))
+    assert len(runs[0][0].chars) > 5 and runs[0][0].chars.size == runs[1][0].chars.size
+    for x, y in zip(runs[0][0] + runs[0][1:], runs[1][0] + runs[1][1:]):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_threats_match_twin():
     rng = np.random.default_rng(9)
     n, p = 40, 100

@@ -215,6 +215,7 @@ def game_workload(n: int) -> Workload:
 def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     """The game workload: a cold solve, then warm-started 4-iteration FABRIK frames plus the bullet step."""
     from crowd_ik.crowd import Crowd, Status
+    from crowd_ik.game.bullets import LIMB_CELL
     from crowd_ik.game.pool import BulletPool
 
     wl = game_workload(n)
@@ -235,7 +236,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     alive = np.ones(n, np.int32)
     lo, hi = wl.roots.min(0) - 3.0, wl.roots.max(0) + 3.0
     pool = BulletPool(pool_size, radius=0.03, bounds=(lo[0], lo[2], hi[0], hi[2]), cell_size=1.0,
-                      capsule_capacity=n * B)
+                      capsule_capacity=n * B, limb_cell_size=LIMB_CELL)  # the game's limb grid
     rng = np.random.default_rng(SEED + 1)
     origins = np.stack([rng.uniform(lo[0], hi[0], pool_size), rng.uniform(0.3, 1.8, pool_size),
                         rng.uniform(lo[2], hi[2], pool_size)], axis=1).astype(np.float32)

@@ -191,12 +191,15 @@ def substep_count(prev_a, prev_b, a, b, radii, owner, char_alive, max_substeps: 
 class BulletPool:
     """A fixed pool of `pool_size` bullet slots of one radius (metres), with its grids.
 
-    bounds (x_min, z_min, x_max, z_max) and cell_size set the broad-phase grids (both the limbs'
-    and the bullets' threat grid); bullets farther than `far` metres from the origin die.
+    bounds (x_min, z_min, x_max, z_max) and cell_size set the broad-phase grids: the bullets' threat
+    grid, and the limbs' grid unless limb_cell_size says otherwise (the limbs' is best near a limb's
+    length, the threats' near the spacing of the characters: a bullet's path over the threat horizon
+    covers many cells); bullets farther than `far` metres from the origin die.
     """
 
     def __init__(self, pool_size: int, radius: float = 0.03, bounds=(-32.0, -32.0, 32.0, 32.0),
-                 cell_size: float = 1.0, far: float = 1000.0, capsule_capacity: int = 4096):
+                 cell_size: float = 1.0, far: float = 1000.0, capsule_capacity: int = 4096,
+                 limb_cell_size: float | None = None):
         import taichi as ti
 
         ensure_init()
@@ -217,7 +220,8 @@ class BulletPool:
         self.bullet_toi = ti.ndarray(ti.f32, shape=(P,))
         self.bullet_point = ti.ndarray(vec3, shape=(P,))
         self.bullet_char.fill(-1)
-        self.limb_grid = Grid(bounds, cell_size, 4 * capsule_capacity)
+        self.limb_grid = Grid(bounds, cell_size if limb_cell_size is None else limb_cell_size,
+                              4 * capsule_capacity)
         self.threat_grid = Grid(bounds, cell_size, 4 * P)
         self._n_chars = -1
         self._threat_out = None
