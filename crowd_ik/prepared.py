@@ -122,7 +122,7 @@ class Prepared:
         t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
         prog = impl.get_runtime().prog
         with cfg_passes(getattr(self.kernel, "cfg_optimization", prog.config().cfg_optimization)):
-            # the compiled kernel the ordinary call launched (kernels/cfg_passes.py: the setting is part of its key)
+            # under the setting of the ordinary call that compiled it (kernels/cfg_passes.py)
             data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
         self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
         while len(self._contexts) > CONTEXTS:

@@ -7,8 +7,9 @@ cfg_optimization=False. A kernel decorated with :func:`with_cfg_passes` is compi
 whose packet and per-pixel paths give the same bits only under the passes they were matched with (a store the
 passes forward is fused into a multiply-add, one they keep is rounded to float32 first; tests/test_raster_lanes.py).
 
-The setting is a field of Taichi's one compile config, which every launch reads (a kernel is compiled once per
-setting and then looked up by it), so the wrapper sets it around each call. Every Taichi launch of a process is on
+The setting is a field of Taichi's one compile config, which a kernel's first launch reads when it compiles it
+(within a process Taichi then keeps that compile whatever the setting; the offline cache's key includes it), so
+the wrapper sets it around each call. Every Taichi launch of a process is on
 its main thread (crowd_ik/io/pipeline.py), so no other launch sees it. crowd_ik.prepared does the same for a
 wrapped kernel it binds (`cfg_optimization` attribute).
 """
