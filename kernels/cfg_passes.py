@@ -4,8 +4,8 @@ Taichi's CFG passes (store-to-load forwarding and dead-store elimination across 
 kernel's cold compile, and LLVM does the same work after them: with them off the solver kernels run as fast and
 compile 2.5-4x sooner (docs/ARCHITECTURE.md "Compile time"). So crowd_ik.runtime starts Taichi with
 cfg_optimization=False. A kernel decorated with :func:`with_cfg_passes` is compiled with them on: the raster's,
-whose packet and per-pixel paths give the same bits only under the passes they were matched with (a store the
-passes forward is fused into a multiply-add, one they keep is rounded to float32 first; tests/test_raster_lanes.py).
+whose packet and per-pixel paths give the same bits only under the passes they were matched with (the ground's
+depth differs by an ulp without them, presumably where fast math fuses a multiply-add; tests/test_raster_lanes.py).
 
 The setting is a field of Taichi's one compile config, which a kernel's first launch reads when it compiles it
 (within a process Taichi then keeps that compile whatever the setting; the offline cache's key includes it), so
