@@ -258,6 +258,8 @@ def test_threats_ignore_receding_and_far_bullets():
 def test_bad_input_is_refused_with_the_argument_name():
     with pytest.raises(ValueError, match="pool_size"):
         BulletPool(0)
+    with pytest.raises(ValueError, match="limb_cell_size"):
+        BulletPool(4, limb_cell_size=-1.0)
     pool = BulletPool(4)
     with pytest.raises(ValueError, match="origins"):
         pool.spawn(np.zeros((2, 2)), np.zeros((2, 3)))

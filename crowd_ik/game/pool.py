@@ -220,8 +220,8 @@ class BulletPool:
         self.bullet_toi = ti.ndarray(ti.f32, shape=(P,))
         self.bullet_point = ti.ndarray(vec3, shape=(P,))
         self.bullet_char.fill(-1)
-        self.limb_grid = Grid(bounds, cell_size if limb_cell_size is None else limb_cell_size,
-                              4 * capsule_capacity)
+        limb_cell = cell_size if limb_cell_size is None else _positive("limb_cell_size", limb_cell_size)
+        self.limb_grid = Grid(bounds, limb_cell, 4 * capsule_capacity)
         self.threat_grid = Grid(bounds, cell_size, 4 * P)
         self._n_chars = -1
         self._threat_out = None
