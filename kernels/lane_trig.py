@@ -116,9 +116,15 @@ def _acos(x):
 
 
 # ---------------------------------------------------------------------------------------------- the functions
-# On a lane vector each is a call of a real function compiled once per kernel and width (ti.real_func): inlined
+# On a lane vector each is a call of one real function compiled once per kernel and width (ti.real_func): inlined
 # at every call site, the polynomials tripled the limited lane kernel's cold compile (4 lanes, every trigonometric
 # call replaced: 30 -> 88 s of CPU; as real functions 46 s); on a scalar the code is inlined.
+# One real function, not one per operation: Taichi 1.7.4's offline-cache key serialises a kernel's real functions
+# in the order of a hash map keyed by their addresses, so a kernel calling two or more of them got one of several
+# keys at random from run to run, and a warm cache missed (the limited FABRIK kernel: two keys, a 10-25 s compile
+# in about every other fresh process, until both were cached; tests/test_lane_trig.py).
+
+SIN_COS, ATAN2, ASIN, ACOS = 0, 1, 2, 3  # the operations of the real function
 
 
 def lanes_of(x) -> int:
@@ -128,28 +134,25 @@ def lanes_of(x) -> int:
 
 @functools.cache
 def _real(L: int):
-    """The real functions for L lanes: (sin_cos, atan2, asin, acos)."""
+    """The real function for L lanes: trig_l(op, a, b) -> (s, c): (sin a, cos a) for SIN_COS, (atan2(a, b), b) for
+    ATAN2, (asin a, b) for ASIN and (acos a, b) for ACOS."""
     V = ti.types.vector(L, ti.f32)
     SC = ti.types.struct(s=V, c=V)
 
     @ti.real_func
-    def sin_cos_l(x: V) -> SC:
-        s, c = _sin_cos(x)
+    def trig_l(op: ti.i32, a: V, b: V) -> SC:
+        s, c = a, b
+        if op == SIN_COS:
+            s, c = _sin_cos(a)
+        elif op == ATAN2:
+            s = _atan2(a, b)
+        elif op == ASIN:
+            s = _asin(a)
+        else:
+            s = _acos(a)
         return SC(s=s, c=c)
 
-    @ti.real_func
-    def atan2_l(y: V, x: V) -> V:
-        return _atan2(y, x)
-
-    @ti.real_func
-    def asin_l(x: V) -> V:
-        return _asin(x)
-
-    @ti.real_func
-    def acos_l(x: V) -> V:
-        return _acos(x)
-
-    return sin_cos_l, atan2_l, asin_l, acos_l
+    return trig_l
 
 
 @ti.func
@@ -157,7 +160,7 @@ def sin_cos(x):
     """(sin x, cos x) from one range reduction."""
     s, c = x, x
     if ti.static(lanes_of(x) > 0):
-        r = ti.static(_real(lanes_of(x)))[0](x)
+        r = ti.static(_real(lanes_of(x)))(SIN_COS, x, x)
         s, c = r.s, r.c
     else:
         s, c = _sin_cos(x)
@@ -181,7 +184,7 @@ def atan2(y, x):
     """The angle of (x, y) in [-pi, pi]; 0 at (0, 0). y and x both lane vectors or both scalars."""
     a = x
     if ti.static(lanes_of(x) > 0):
-        a = ti.static(_real(lanes_of(x)))[1](y, x)
+        a = ti.static(_real(lanes_of(x)))(ATAN2, y, x).s
     else:
         a = _atan2(y, x)
     return a
@@ -191,7 +194,7 @@ def atan2(y, x):
 def asin(x):
     a = x
     if ti.static(lanes_of(x) > 0):
-        a = ti.static(_real(lanes_of(x)))[2](x)
+        a = ti.static(_real(lanes_of(x)))(ASIN, x, x).s
     else:
         a = _asin(x)
     return a
@@ -201,7 +204,7 @@ def asin(x):
 def acos(x):
     a = x
     if ti.static(lanes_of(x) > 0):
-        a = ti.static(_real(lanes_of(x)))[3](x)
+        a = ti.static(_real(lanes_of(x)))(ACOS, x, x).s
     else:
         a = _acos(x)
     return a

@@ -150,3 +150,42 @@ def test_scalar_code_gives_the_vector_code_results(trig):
     vec, one = trig(x, y), trig(x, y, scalar=True)
     for name in vec:
         np.testing.assert_allclose(vec[name], one[name], rtol=3e-7, atol=1e-37, err_msg=name)
+
+
+CACHE_KEY_SCRIPT = '''
+import sys
+import crowd_ik
+crowd_ik.init(arch="cpu", cache_dir=sys.argv[1])
+import taichi as ti
+from crowd_ik.kernels import lane_trig as lt
+V = ti.types.vector(4, ti.f32)
+
+@ti.kernel
+def every_function(x: ti.types.ndarray(dtype=V, ndim=1), out: ti.types.ndarray(dtype=V, ndim=1)):
+    for i in range(x.shape[0]):
+        s, c = lt.sin_cos(x[i])
+        out[i] = s + c + lt.atan2(s, c) + lt.asin(0.5 * s) + lt.acos(0.5 * c)
+
+x = ti.ndarray(V, 2)
+out = ti.ndarray(V, 2)
+every_function(x, out)
+'''
+
+
+def test_a_kernel_calling_every_lane_function_gets_the_same_cache_key_in_every_process(tmp_path):
+    """Fresh processes with fresh offline caches write the same cache file names for the same kernel: Taichi 1.7.4
+    serialises a kernel's real functions in address order, so with one per operation the key changed from run to
+    run (lane_trig's note) and a warm cache missed."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "every_function.py"
+    script.write_text(CACHE_KEY_SCRIPT)
+    names = []
+    for run in range(4):
+        cache = tmp_path / f"cache{run}"
+        done = subprocess.run([sys.executable, str(script), str(cache)], capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        names.append(sorted(p.name for p in cache.rglob("*.tic")))
+    assert names[0], "the kernel wrote nothing to its offline cache"
+    assert all(n == names[0] for n in names), names
