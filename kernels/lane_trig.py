@@ -3,7 +3,7 @@
 Taichi compiles ``ti.sin`` (and the others) on a ``ti.types.vector(L, ti.f32)`` to one libm call per lane,
 which does not vectorise; these are the same functions written with +, *, /, sqrt, floor and selects only, so
 LLVM packs them like the arithmetic around them, and every lane performs the same operations whatever its
-lane-mates hold. On a lane vector each is a call of a real function compiled once per kernel and width; on a
+lane-mates hold. On a lane vector each is a call of the one real function compiled once per kernel and width; on a
 scalar it is inlined.
 
 The polynomials are Cephes' single-precision minimax fits (Moshier), the range reductions theirs too:
