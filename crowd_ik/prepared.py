@@ -10,7 +10,9 @@ array born at a reused id never meets it and none is kept alive. On a match it s
 raw pointer) and the scalars, and launches the compiled kernel. A first call, other arrays and anything it does
 not handle (a return value, unsigned or vector scalars, a Fortran-ordered array, a gradient) go through the
 ordinary call, which also compiles and checks; arrays are bound the second time they are seen together, so
-fresh temporaries cost nothing more. Bound arrays must not be resized in place (NumPy's ndarray.resize). The
+fresh temporaries cost nothing more. On CUDA every call is the ordinary one: there Taichi's launcher copies host
+arrays to the device and back around each launch, and a kept context launched again crashed the process
+(segfaults in the solver tests and `play` on an H200; the cause inside Taichi was not traced). Bound arrays must not be resized in place (NumPy's ndarray.resize). The
 prepared launch runs the same compiled kernel on the same memory, so results are identical (tests/test_prepared.py).
 """
 
@@ -55,7 +57,8 @@ class Prepared:
                 kind = None
             self._slots.append((kind, index))
             index += 1
-        self._plain = primal.return_type is not None or any(kind is None for kind, _ in self._slots)
+        on_cpu = ti.lang.impl.current_cfg().arch == ti.cpu
+        self._plain = not on_cpu or primal.return_type is not None or any(kind is None for kind, _ in self._slots)
         # the key of a call: the ids of its arrays, then its template values (both picked by one C call)
         arrays = [p for p, (kind, _) in enumerate(self._slots) if kind == "array"]
         templates = [p for p, (kind, _) in enumerate(self._slots) if kind == "template"]
