@@ -110,7 +110,7 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
     batch = crowd.solve(targets, weights=weights, max_iterations=40, tolerance=1e-4)
     pos, rot, wrot = crowd.joint_positions(), crowd.rotations(), crowd.world_rotations()
     roots, yaw = crowd.roots()
-    for i in (0, 1, 2, 3, 9, n - 1):
+    for i in (0, 1, 2, 3, min(9, n - 2), n - 1):  # n is 9 at one lane (CUDA)
         one = cik.Crowd(rig, n=1)
         one.set_roots(roots[i:i + 1], yaw=yaw[i:i + 1])
         one.set_angles(angles[i:i + 1])
