@@ -230,7 +230,8 @@ def run(args) -> int:
         from crowd_ik.bench import peers as bench_peers
         print(bench_peers.format_table(records))
     for c in children:
-        print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({_isa()})")
+        where = f"{c['gpu']}: one character per GPU thread" if c["arch"] == "cuda" and c.get("gpu") else _isa()
+        print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({where})")
         for key, info in c["compile"].items():
             print(f"compile {c['arch']} {key}: first call {info['first_call_s']:.2f} s, steady {info['steady_s']:.3f} s "
                   f"on {info['n']} characters -> compile {info['compile_s']:.2f} s")
