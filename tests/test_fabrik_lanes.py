@@ -27,10 +27,10 @@ def limited_lanes_on(monkeypatch):
 def _solve_both(monkeypatch, crowd_factory, frames, orientations=None):
     """Run the frames (targets, max_iterations, tolerance[, poles]) on two crowds: the lane kernel and the general
     one, with the orientation targets (or none) in every frame."""
-    orig = adapter._lane_active
+    orig = adapter.lane_active
     out = []
     for lanes in (True, False):
-        monkeypatch.setattr(adapter, "_lane_active", orig if lanes else (lambda crowd, req: None))
+        monkeypatch.setattr(adapter, "lane_active", orig if lanes else (lambda crowd, req: None))
         crowd = crowd_factory()
         got = []
         for targets, iterations, tolerance, *poles in frames:
@@ -38,7 +38,7 @@ def _solve_both(monkeypatch, crowd_factory, frames, orientations=None):
                               poles=poles[0] if poles else None, orientations=orientations)
             got.append((rep, crowd.joint_positions(), crowd.rotations()))
         out.append(got)
-    monkeypatch.setattr(adapter, "_lane_active", orig)
+    monkeypatch.setattr(adapter, "lane_active", orig)
     return out
 
 
@@ -182,16 +182,16 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
     crowd = cik.Crowd(h, 8)
     targets = crowd.joint_positions()[:, h.arrays["eff_joint"]] + 0.01
     seen = []
-    orig = adapter._lane_active
+    orig = adapter.lane_active
 
     def spy(c, req):
         seen.append(orig(c, req))
         return seen[-1]
 
     lane_solves = []
-    orig_limited = adapter._limited
-    adapter._lane_active = spy
-    adapter._limited = lambda *a: (lane_solves.append(1), orig_limited(*a))
+    orig_limited = adapter.solve_limited
+    adapter.lane_active = spy
+    adapter.solve_limited = lambda *a: (lane_solves.append(1), orig_limited(*a))
     try:
         crowd.solve(targets, method="fabrik", max_iterations=2)
         w = np.ones((8, h.n_effectors), np.float32)
@@ -214,8 +214,8 @@ def test_limited_lanes_dispatch_only_where_they_reproduce_the_request():
         crowd.solve(targets, method="fabrik", max_iterations=2, rotations=rots)  # rotation targets: general
         assert len(lane_solves) == before
     finally:
-        adapter._lane_active = orig
-        adapter._limited = orig_limited
+        adapter.lane_active = orig
+        adapter.solve_limited = orig_limited
     assert seen[0] is not None and seen[0].sum() == h.n_joints - 2  # all but the toes, below the ankle effectors
     assert seen[1] is not None and seen[1][h.arrays["eff_joint"][0]] == 0 and seen[1][0] == 1
     assert seen[2] is not None and np.array_equal(seen[2], seen[1]) and seen[3] is not None

@@ -113,8 +113,10 @@ def test_poles_turn_knees_and_elbows_toward_them_and_keep_the_effectors(method):
         np.testing.assert_allclose(rep.error, err, atol=2e-5)
 
 
-def assert_batch_equals_one_at_a_time(rig, roots, yaw, angles, targets, method, per_character, **kwargs):
-    """A batch solve against each character solved alone (per_character: the (N, ...) arguments), bit for bit."""
+def assert_batch_equals_one_at_a_time(rig, roots, yaw, angles, targets, method, per_character, atol=0.0, **kwargs):
+    """A batch solve against each character solved alone (per_character: the (N, ...) arguments): the same
+    iterations and status, rotations and errors bit for bit (atol 0), or within atol where a kernel packs
+    characters as SIMD lanes (a character alone in a padded packet: tests/test_fabrik_lanes.py)."""
     n = len(roots)
     batch = cik.Crowd(rig, n=n)
     batch.set_roots(roots, yaw)
@@ -126,9 +128,14 @@ def assert_batch_equals_one_at_a_time(rig, roots, yaw, angles, targets, method, 
         one.set_angles(angles[i : i + 1])
         r1 = one.solve(targets[i : i + 1], method=method, **{k: v[i : i + 1] for k, v in per_character.items()},
                        **kwargs)
-        np.testing.assert_array_equal(one.rotations()[0], batch.rotations()[i])
-        assert r1.iterations[0] == rep.iterations[i] and r1.error[0] == rep.error[i]
-        assert r1.rotation_error[0] == rep.rotation_error[i] and r1.status[0] == rep.status[i]
+        assert r1.iterations[0] == rep.iterations[i] and r1.status[0] == rep.status[i]
+        if atol == 0.0:
+            np.testing.assert_array_equal(one.rotations()[0], batch.rotations()[i])
+            assert r1.error[0] == rep.error[i] and r1.rotation_error[0] == rep.rotation_error[i]
+        else:
+            np.testing.assert_allclose(one.rotations()[0], batch.rotations()[i], atol=atol)
+            np.testing.assert_allclose(one.joint_positions()[0], batch.joint_positions()[i], atol=atol)
+            assert abs(r1.error[0] - rep.error[i]) <= atol and abs(r1.rotation_error[0] - rep.rotation_error[i]) <= atol
     return batch, rep
 
 
@@ -147,8 +154,9 @@ def test_poles_batch_equals_one_at_a_time():
     pole[:, 3] = roots + [0.1, 0.5, 1.0]
     pole[:, 1] = roots + [0.8, 0.6, -0.3]
     for method in METHODS:
+        # FABRIK's 10 iterations run in windows, its characters with a target out of reach on the limited lanes
         assert_batch_equals_one_at_a_time(rig, roots, yaw, angles, targets, method, dict(poles=pole),
-                                          max_iterations=10)
+                                          atol=1e-5 if method == "fabrik" else 0.0, max_iterations=10)
 
 
 def test_pole_and_orientation_rows_follow_the_nan_convention():

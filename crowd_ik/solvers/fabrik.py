@@ -29,14 +29,14 @@ def solve(crowd, req) -> None:
         else:
             solve_free(crowd, req.max_iterations, req.tolerance)
         return
-    active = _lane_active(crowd, req)
+    active = lane_active(crowd, req)
     if active is not None:
-        _limited(crowd, active, req.max_iterations, req.tolerance)
+        solve_limited(crowd, active, req.max_iterations, req.tolerance)
     else:
         _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1)
 
 
-def _lane_active(crowd, req):
+def lane_active(crowd, req):
     """The joints' activity (J,) int32 when the limited lane kernel reproduces this request: CPU lanes switched on
     (settings.limited_lanes), no rotation targets (orientation targets are fine), and the same effectors positively weighted for
     every character that weights any (a game's and the bench's requests; solvers/fabrik_restart.py's windows,
@@ -70,7 +70,7 @@ def _active_joints(crowd, weighted: tuple) -> np.ndarray:
     return cache[weighted]
 
 
-def _limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -> None:
+def solve_limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -> None:
     """FABRIK with joint limits, characters as SIMD lanes (kernels/fabrik_limited_lanes.py)."""
     from crowd_ik.kernels import fabrik_limited_lanes, lane_plan
 
