@@ -16,7 +16,7 @@ Taichi 1.7 also holds the GIL for the whole of a kernel launch (measured: a Pyth
 of its time while a 0.4 s kernel ran), so a second Python thread only runs while the main thread is
 in Python code or in a call that releases the GIL. The writer is therefore kept to one call per frame
 that releases the GIL for all its work (os.write into ffmpeg's pipe, cv2.imencode, VideoWriter.write)
-and is otherwise idle; painting trails and HUD there (`overlay_on_writer=True`, view.render.Overlay:
+and is otherwise idle; painting trails and HUD there (`overlay_on_writer=True`, view.overlay.Overlay:
 planned from the frame's depth buffer on the main thread, painted later) costs some thirty GIL
 hand-overs a frame and measured no faster, so by default they are painted on the main thread.
 
@@ -99,7 +99,7 @@ class FrameWriter(Handover):
         self.cpu_s = time.thread_time() - cpu0
 
     def submit(self, frame: np.ndarray, overlay=None) -> None:
-        """Queue a buffer from take(), to be painted with `overlay` (view.render.Overlay or None) and written."""
+        """Queue a buffer from take(), to be painted with `overlay` (view.overlay.Overlay or None) and written."""
         self._check()
         self._todo.put((frame, overlay))
 

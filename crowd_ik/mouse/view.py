@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from crowd_ik.solvers.registry import DEFAULT as DEFAULT_METHOD
-from crowd_ik.view.render import draw_hud
+from crowd_ik.view.overlay import draw_hud
 
 # BGR colours
 BACKGROUND = (34, 28, 26)

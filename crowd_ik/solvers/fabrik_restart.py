@@ -122,7 +122,7 @@ class _Windows:
         self.rows = rows
 
     def run(self) -> None:
-        crowd, req, b = self.crowd, self.req, self.crowd.buffers
+        req, b = self.req, self.crowd.buffers
         M, tol = req.max_iterations, req.tolerance
         reachable = self._reachable(b.weights)
         self.rows.mode[:] = reachable  # the unreachable only go on: one plain solve of all their updates
