@@ -14,6 +14,18 @@ from crowd_ik.solvers.settings import TWIST_FULL_BEND, TWIST_MIN_BEND
 
 
 @ti.func
+def active_child(i, j, child_start: ti.template(), child_list: ti.template(), acc_w: ti.template()):
+    """(the last child of joint j with an active chain below it (acc_w > 0), or -1; how many children have one)."""
+    c = -1
+    k = 0
+    for cc in range(child_start[j], child_start[j + 1]):
+        if acc_w[i, child_list[cc]] > 0.0:
+            c = child_list[cc]
+            k += 1
+    return ti.Vector([c, k])
+
+
+@ti.func
 def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.template(), offset: ti.template(),
                           lo: ti.template(), hi: ti.template(), dof_start: ti.template(), child_start: ti.template(),
                           child_list: ti.template(), work: ti.template(), acc_w: ti.template()):
@@ -24,15 +36,9 @@ def twist_for_hinge_child(i, j, q, inv_base, pos_j, kind: ti.template(), axes: t
     hinge-child positions; the sign follows the hinge's range (a knee bends one way only).
     """
     out = q
-    c = -1
-    for cc in range(child_start[j], child_start[j + 1]):
-        if acc_w[i, child_list[cc]] > 0.0:
-            c = child_list[cc]
+    c = active_child(i, j, child_start, child_list, acc_w)[0]
     if c >= 0 and kind[c] == 1:
-        g = -1
-        for cc in range(child_start[c], child_start[c + 1]):
-            if acc_w[i, child_list[cc]] > 0.0:
-                g = child_list[cc]
+        g = active_child(i, c, child_start, child_list, acc_w)[0]
         if g >= 0:
             b = qrot(out, offset[c]).normalized()
             u = qrot(inv_base, work[i, c] - pos_j)
@@ -83,28 +89,17 @@ def two_bone_swing(i, j, q, inv_base, pos_j, kind: ti.template(), axes: ti.templ
     """
     out = q
     ok = 0
-    c = -1
-    for cc in range(child_start[j], child_start[j + 1]):
-        if acc_w[i, child_list[cc]] > 0.0:
-            c = child_list[cc]
+    c = active_child(i, j, child_start, child_list, acc_w)[0]
     if c >= 0 and kind[c] == 1:
-        g = -1
-        n_g = 0
-        for cc in range(child_start[c], child_start[c + 1]):
-            if acc_w[i, child_list[cc]] > 0.0:
-                g = child_list[cc]
-                n_g += 1
-        if n_g == 1:
+        found = active_child(i, c, child_start, child_list, acc_w)
+        g = found[0]
+        if found[1] == 1:
             # a rigid leaf past g (the hand past the wrist) ends the limb instead, at g's current angles
             end = g
             b = offset[g]
-            h = -1
-            n_h = 0
-            for cc in range(child_start[g], child_start[g + 1]):
-                if acc_w[i, child_list[cc]] > 0.0:
-                    h = child_list[cc]
-                    n_h += 1
-            if n_h == 1 and kind[h] == 0 and child_start[h + 1] == child_start[h]:
+            leaf = active_child(i, g, child_start, child_list, acc_w)
+            h = leaf[0]
+            if leaf[1] == 1 and kind[h] == 0 and child_start[h + 1] == child_start[h]:
                 end = h
                 b = offset[g] + qrot(local_rot[i, g], offset[h])
             ax = axes[c, 0]
