@@ -15,10 +15,11 @@ Which joints are active (some positively weighted effector below them) is the sa
 character's numbers is a per-lane select. A costly branch (the swivel test, an Euler rebuild, a clamp) runs
 only when some live lane takes it. Per lane the arithmetic is fabrik_solve's in the same order, except
 that normalisations multiply by one reciprocal (kernels/lane_math.py), zero products in the Euler rebuild
-are dropped, and the hinge's, the two-bone limb's and the twist's sin, cos, atan2 and acos are the element-wise
-polynomials of kernels/lane_trig.py (within 3 ulp of the true values; instead of libm's calls, one per lane:
-the warm 10,000-humanoid game solve 12-20 % faster), so statuses and iteration counts match and results do not
-depend on a character's lane-mates (bit for bit: tests/test_fabrik_lanes.py).
+are dropped, and all trigonometry (the hinge's, the two-bone limb's, the twist's, the ball joints' limits) is the
+element-wise polynomials of kernels/lane_trig.py (within 3 ulp of the true values; instead of libm's calls, one per
+lane: the warm 10,000-humanoid game solve 12-20 % faster, and the ball joints' 12 % more, kernels/lane_limits.py),
+so statuses and iteration counts match and results do not depend on a character's lane-mates (bit for bit:
+tests/test_fabrik_lanes.py).
 """
 
 import functools
