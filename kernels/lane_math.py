@@ -6,7 +6,8 @@ per-lane selects. Each helper performs the same floating-point operations in the
 twin in kernels/quat.py (and Taichi's own ``cross``, ``dot``, ``norm`` and ``normalized``), except that
 the normalisations multiply by one reciprocal instead of dividing each component (within an ulp; the
 lane kernels are division-bound), so a lane gets what the one-character kernel gets up to rounding. The functions are generic in L: Taichi instantiates them for
-the lane vectors they are called with.
+the lane vectors they are called with. The helpers that need trigonometry (axis_angle, twist_angle,
+best_angle_about) are in kernels/lane_trig.py, on its polynomials.
 """
 
 import taichi as ti
@@ -97,23 +98,9 @@ def any_lane(mask):
 
 
 @ti.func
-def axis_angle(ax, ay, az, angle):
-    """quat.axis_angle per lane (the axis a scalar or a lane vector)."""
-    h = 0.5 * angle
-    s = ti.sin(h)
-    return ax * s, ay * s, az * s, ti.cos(h)
-
-
-@ti.func
 def wrap_angle(t):
     """quat.wrap_angle: to (-pi, pi]."""
     return t - 2.0 * PI * ti.floor((t + PI) / (2.0 * PI))
-
-
-@ti.func
-def twist_angle(qx, qy, qz, qw, ax, ay, az):
-    """quat.twist_angle: the angle of q's twist about a unit axis, in (-pi, pi]."""
-    return wrap_angle(2.0 * ti.atan2(dot3(qx, qy, qz, ax, ay, az), qw))
 
 
 @ti.func
@@ -121,14 +108,3 @@ def pseudo_angle(x, y):
     """quat.pseudo_angle per lane: atan2's order on (-pi, pi] without trigonometry."""
     p = y / ti.max(ti.abs(x) + ti.abs(y), 1e-30)
     return ti.select(x < 0.0, ti.select(y >= 0.0, 2.0 - p, -2.0 - p), p)
-
-
-@ti.func
-def best_angle_about(ax, ay, az, ux, uy, uz, vx, vy, vz):
-    """quat.best_angle_about: the angle about a unit axis that best turns u toward v."""
-    du = dot3(ux, uy, uz, ax, ay, az)
-    dv = dot3(vx, vy, vz, ax, ay, az)
-    px, py, pz = ux - du * ax, uy - du * ay, uz - du * az
-    rx, ry, rz = vx - dv * ax, vy - dv * ay, vz - dv * az
-    cx, cy, cz = cross(px, py, pz, rx, ry, rz)
-    return ti.atan2(dot3(ax, ay, az, cx, cy, cz), dot3(px, py, pz, rx, ry, rz))

@@ -210,26 +210,26 @@ def acos(x):
     return a
 
 
-# ---------------------------------------------------------------------------------------------- lane_math's helpers
-# kernels/lane_math.py's helpers that call trigonometry, with the functions above (the same operations otherwise)
+# ---------------------------------------------------------------------------------------------- quaternion helpers
+# kernels/quat.py's helpers that call trigonometry, per lane with the functions above (the same operations otherwise)
 
 
 @ti.func
 def axis_angle(ax, ay, az, angle):
-    """lane_math.axis_angle: the rotation by angle about a unit axis."""
+    """quat.axis_angle per lane: the rotation by angle about a unit axis."""
     s, c = sin_cos(0.5 * angle)
     return ax * s, ay * s, az * s, c
 
 
 @ti.func
 def twist_angle(qx, qy, qz, qw, ax, ay, az):
-    """lane_math.twist_angle: the angle of q's twist about a unit axis, in (-pi, pi]."""
+    """quat.twist_angle per lane: the angle of q's twist about a unit axis, in (-pi, pi]."""
     return lm.wrap_angle(2.0 * atan2(lm.dot3(qx, qy, qz, ax, ay, az), qw))
 
 
 @ti.func
 def best_angle_about(ax, ay, az, ux, uy, uz, vx, vy, vz):
-    """lane_math.best_angle_about: the angle about a unit axis that best turns u toward v."""
+    """quat.best_angle_about per lane: the angle about a unit axis that best turns u toward v."""
     du = lm.dot3(ux, uy, uz, ax, ay, az)
     dv = lm.dot3(vx, vy, vz, ax, ay, az)
     px, py, pz = ux - du * ax, uy - du * ay, uz - du * az
