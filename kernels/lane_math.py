@@ -5,9 +5,10 @@ holding one character per lane; branches of the one-character helpers in kernels
 per-lane selects. Each helper performs the same floating-point operations in the same order as its
 twin in kernels/quat.py (and Taichi's own ``cross``, ``dot``, ``norm`` and ``normalized``), except that
 the normalisations multiply by one reciprocal instead of dividing each component (within an ulp; the
-lane kernels are division-bound), so a lane gets what the one-character kernel gets up to rounding. The functions are generic in L: Taichi instantiates them for
-the lane vectors they are called with. The helpers that need trigonometry (axis_angle, twist_angle,
-best_angle_about) are in kernels/lane_trig.py, on its polynomials.
+lane kernels are division-bound), so a lane gets what the one-character kernel gets up to rounding. The
+functions are generic in L: Taichi instantiates them for the lane vectors they are called with. The helpers
+that need trigonometry (axis_angle, twist_angle, best_angle_about) are in kernels/lane_trig.py, on its
+polynomials.
 """
 
 import taichi as ti

@@ -19,12 +19,13 @@ The windows are kernels/fabrik.py's fabrik_solve in its windowed mode (recover_e
 round for the characters listed, each with its own budget (what it has left), a slow window or a stall ending a
 character's launch; the host then reads the slow ones' angles and moves the starts (kernels/fabrik_restart.py).
 Characters with a target beyond their reach (Crowd's UNREACHABLE rule) get one plain solve of all their
-iterations, as without windows, on the joint-limited lanes where fabrik.solve would use them. Every character keeps the pose with the lowest error it has had. The report counts
-every update applied, restarts and jumps included, never more than max_iterations; STALLED means the last attempt
-stopped improving (or gave up), MAX_ITERATIONS that it was still improving when the clock ran out. Solves of at
-most WINDOW iterations (the game's warm 4-iteration frames), rigs without limits, and solves with orientation or
-rotation targets are solvers/fabrik.solve unchanged (which may run them on the limited lanes); the windows of the
-reachable characters always run the one-character kernel.
+iterations, as without windows, on the joint-limited lanes where fabrik.solve would use them. Every character keeps
+the pose with the lowest error it has had. The report counts every update applied, restarts and jumps included,
+never more than max_iterations; STALLED means the last attempt stopped improving (or gave up), MAX_ITERATIONS
+that it was still improving when the clock ran out. Solves of at most WINDOW iterations (the game's warm
+4-iteration frames), rigs without limits, and solves with orientation or rotation targets are solvers/fabrik.solve
+unchanged (which may run them on the limited lanes); the windows of the reachable characters always run the
+one-character kernel.
 """
 
 from __future__ import annotations
