@@ -9,13 +9,13 @@ Phases (one launch each; `crowd_ik.game.pool.BulletPool` runs them in this order
   bullet_grid      mark_bullet_cells,     broad phase: a uniform grid on (x, z) built with integer
                    reachable_owners,      atomics only (count, exclusive prefix sum, scatter), in the
                    build_grid             cells the bullets can reach, of the owners with a segment there
-  bullet_hits      reset_hits,            narrow phase: earliest time of impact per bullet, then one
-                   collide_bullets,       winner per character by an int64 atomic_min on
-                   apply_hits             key = (sub-step, quantised toi) << 32 | bullet id
+  bullet_hits      reset_hits,            narrow phase: earliest time of impact per bullet (each
+                   collide_bullets,       sub-stepped as its near limbs need), then one winner per
+                   apply_hits             character by an int64 atomic_min on key = quantised toi << 32 | id
   bullet_threats   threat_pass            per character, the first bullet that will pass near it
 This module re-exports them and holds the fused kernels the game's step launches instead:
-prepare_limbs (marking, reachable characters, sub-step count, limb grid, reset) and one
-advance_bullets per sub-step (integrate, collide, apply, export), built from the same loop bodies.
+prepare_limbs (marking, reachable characters, limb grid, reset) and advance_bullets (integrate,
+collide, apply, export), built from the same loop bodies.
 
 Determinism: nothing here uses float atomics. The order of capsule ids inside a grid cell depends on
 thread timing, but every result is a minimum under a total order ((toi, capsule id) per bullet,
@@ -27,7 +27,7 @@ import taichi as ti
 from crowd_ik.kernels.bullet_grid import (build_grid, count_box, fill_box, mark_bullet, mark_bullet_cells,  # noqa: F401
                                           reachable_owner, reachable_owners, scan_cells, swept_box)
 from crowd_ik.kernels.bullet_hits import (MAX_SUBSTEPS, NO_HIT, TOI_BITS, apply_hit, apply_hits,  # noqa: F401
-                                          collide_bullet, collide_bullets, count_substeps, limb_substeps, reset_hits)
+                                          collide_bullet, collide_bullets, reset_hits)
 from crowd_ik.kernels.bullet_physics import export_bullets, integrate_bullet, integrate_bullets, spawn_bullets  # noqa: F401
 from crowd_ik.kernels.bullet_threats import threat_pass  # noqa: F401
 
@@ -43,10 +43,8 @@ vec3 = ti.math.vec3
 
 @ti.func
 def count_limb(c, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), radius: ti.template(),
-               owner: ti.template(), reachable: ti.template(), substeps: ti.template(), ox, oz, cell, nx, nz,
-               mask: ti.template(), cell_count: ti.template()):
-    """Limb c of a reachable owner: its sub-step count, and its swept box counted into the marked cells."""
-    limb_substeps(c, a0, b0, a1, b1, radius, owner, reachable, substeps)
+               ox, oz, cell, nx, nz, mask: ti.template(), cell_count: ti.template()):
+    """Limb c of a reachable owner: its swept box counted into the marked cells."""
     x0, z0, x1, z1 = swept_box(a0[c], b0[c], a1[c], b1[c], radius[c])
     count_box(x0, z0, x1, z1, ox, oz, cell, nx, nz, 1, mask, cell_count)
 
@@ -81,7 +79,6 @@ def prepare_limbs(
     b1: ndarray(dtype=vec3, ndim=1),
     radius: ndarray(ndim=1),
     owner: ndarray(dtype=ti.i32, ndim=1),
-    substeps: ndarray(dtype=ti.i32, ndim=1),
     hit_key: ndarray(dtype=ti.i64, ndim=1),
     hit_bullet: ndarray(dtype=ti.i32, ndim=1),
     bullet_char: ndarray(dtype=ti.i32, ndim=1),
@@ -96,8 +93,7 @@ def prepare_limbs(
 ):
     """Everything a step's collisions need before the bullets move, in one launch:
     mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
-    count_substeps over the reachable owners' limbs (into substeps[0], zeroed by the caller) +
-    build_grid of those limbs into the marked cells + reset_hits. The grid is valid when total[0]
+    build_grid of the reachable owners' limbs into the marked cells + reset_hits. The grid is valid when total[0]
     <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again. Bullet loops stop
     at n_slots (slots beyond were never used). stride > 0 says that capsule c belongs to owner c // stride
     (each owner's capsules in one block): the limb loops then visit the reachable owners' blocks only,
@@ -122,13 +118,12 @@ def prepare_limbs(
     ti.loop_config(serialize=serial)
     for c in range(by_capsule):
         if reachable[owner[c]] != 0:
-            count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask, cell_count)
+            count_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cell_count)
     ti.loop_config(serialize=serial)
     for n in range(by_owner):
         if reachable[n] != 0:
             for c in range(n * stride, (n + 1) * stride):
-                count_limb(c, a0, b0, a1, b1, radius, owner, reachable, substeps, ox, oz, cell, nx, nz, mask,
-                           cell_count)
+                count_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cell_count)
     ti.loop_config(serialize=serial)
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
@@ -160,7 +155,6 @@ def advance_bullets(
     b0: ndarray(dtype=vec3, ndim=1),
     a1: ndarray(dtype=vec3, ndim=1),
     b1: ndarray(dtype=vec3, ndim=1),
-    s: float,
     radius: ndarray(ndim=1),
     owner: ndarray(dtype=ti.i32, ndim=1),
     char_alive: ndarray(dtype=ti.i32, ndim=1),
@@ -171,13 +165,13 @@ def advance_bullets(
     nz: ti.i32,
     cell_start: ndarray(dtype=ti.i32, ndim=1),
     entries: ndarray(dtype=ti.i32, ndim=1),
-    substep: ti.i32,
-    n_substeps: ti.i32,
+    max_substeps: ti.i32,
     hit_key: ndarray(dtype=ti.i64, ndim=1),
     bullet_key: ndarray(dtype=ti.i64, ndim=1),
     bullet_char: ndarray(dtype=ti.i32, ndim=1),
     bullet_toi: ndarray(ndim=1),
     bullet_point: ndarray(dtype=vec3, ndim=1),
+    bullet_substeps: ndarray(dtype=ti.i32, ndim=1),
     hit_bullet: ndarray(dtype=ti.i32, ndim=1),
     export: ti.i32,
     pos_out: ndarray(dtype=vec3, ndim=1),
@@ -186,16 +180,16 @@ def advance_bullets(
     n_slots: ti.i32,
     serial: ti.template(),
 ):
-    """One sub-step in one launch: integrate_bullets (dt) then collide_bullets for each bullet (a
-    bullet's collision reads only its own new segment), then apply_hits; with export != 0 also
+    """A step in one launch: integrate_bullets (dt) then collide_bullets for each bullet (a bullet's
+    collision reads only its own new segment), then apply_hits; with export != 0 also
     export_bullets into pos_out, vel_out, alive_out. Only slots below n_slots (the others were never used: their
     exported values stay as they are, dead)."""
     ti.loop_config(serialize=serial)
     for p in range(n_slots):
         integrate_bullet(p, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
-        collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, s, radius, owner, char_alive, ox, oz, cell,
-                       nx, nz, cell_start, entries, substep, n_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
-                       bullet_point)
+        collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, ox, oz, cell, nx,
+                       nz, cell_start, entries, max_substeps, hit_key, bullet_key, bullet_char, bullet_toi, bullet_point,
+                       bullet_substeps)
     ti.loop_config(serialize=serial)
     for p in range(n_slots):
         apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)

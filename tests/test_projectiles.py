@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from bullet_cases import DT, _capsules, _f32, _fire, _owner_boxes, _post, _scene
-from crowd_ik.game.pool import BulletPool, substep_count
+from crowd_ik.game.pool import BulletPool
 from crowd_ik.reference import projectiles as ref
 
 

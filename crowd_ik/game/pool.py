@@ -14,15 +14,16 @@ Rules (DESIGN "Game rules"):
   in the limb's end-of-(sub-)step pose; each bullet's earliest hit counts, ties to the lower capsule id;
 - a character is hit at most once per step: the bullet with the smallest (quantised toi, bullet id)
   wins it (an int64 atomic_min), whatever the thread order;
-- every bullet that strikes a limb dies, winner or not (the body stops it); on later sub-steps of
-  the same step, a character already hit no longer stops bullets;
-- `advance` sub-steps when a limb moves more than its own radius in a step: k sub-steps of dt / k,
-  the limbs linearly interpolated between the previous and the current pose (each sub-step tests
-  the pose at its end), so a fast limb sweeping through a slow bullet is caught;
+- every bullet that strikes a limb dies, winner or not (the body stops it);
+- `advance` sub-steps each bullet on its own, as finely as the limbs near its path move: k = the
+  most that a limb near it needs for its ends to move no more than its radius per sub-step (at
+  most max_substeps). The bullet moves linearly along its step's segment, the limbs linearly
+  between the previous and the current pose, and sub-segment j is tested against the pose at
+  (j + 1) / k, so a fast limb sweeping through a slow bullet is caught, while a limb flailing
+  across the arena sub-steps only the bullets near it;
 - `advance` bins limbs only into the grid cells a live bullet can reach during the step; given
   each character's box (`owner_boxes`), characters no bullet can reach are skipped before their
-  limbs are read, and only the limbs of reachable characters count for sub-stepping (a flailing
-  limb across the arena does not sub-step every bullet).
+  limbs are read.
 """
 
 from __future__ import annotations
@@ -171,23 +172,6 @@ class Grid:
         return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
-def substep_count(prev_a, prev_b, a, b, radii, owner, char_alive, max_substeps: int = 16) -> int:
-    """Sub-steps needed so no live limb end moves more than its own radius per sub-step, in [1, max_substeps].
-
-    prev_a, prev_b, a, b: (C, 3) limb capsule ends at the previous and the current step, metres;
-    radii (C,) metres; owner (C,) character ids; char_alive (N,) 0/1.
-    """
-    from crowd_ik.kernels import projectiles as kp
-
-    ensure_init()
-    max_substeps = int(max_substeps)
-    if not 1 <= max_substeps <= kp.MAX_SUBSTEPS:
-        raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
-    out = np.zeros(1, np.int32)
-    kp.count_substeps(prev_a, prev_b, a, b, radii, owner, char_alive, out)
-    return int(min(max(int(out[0]), 1), max_substeps))
-
-
 class BulletPool:
     """A fixed pool of `pool_size` bullet slots of one radius (metres), with its grids.
 
@@ -225,9 +209,10 @@ class BulletPool:
         self.threat_grid = Grid(bounds, cell_size, 4 * P)
         self._n_chars = -1
         self._threat_out = None
-        self._substeps_out = np.zeros(1, np.int32)  # written by prepare_limbs (host memory)
+        self.bullet_substeps = np.zeros(P, np.int32)  # (P,) each bullet's sub-steps on the last collide (host memory)
         self._spawn_in = None  # spawn_bullets' slots, origins and velocities, kept (grown when a spawn needs more)
-        self.last_substeps = 0
+        self.last_substeps = 0    # the most sub-steps a bullet took on the last collide/advance
+        self.last_substepped = 0  # how many bullets took more than one
         # slots [0, _used) have been alive at some time; spawn takes the lowest free slots, so this stays
         # near the largest number of bullets in flight at once, and the per-step kernels loop only over it
         self._used = 0
@@ -327,20 +312,20 @@ class BulletPool:
         capsules_a, capsules_b (C, 3) limb axis ends, metres; radii (C,) metres; owner (C,) character
         ids; char_alive (n_chars,) 0/1. Every bullet that struck a limb dies.
         """
-        return self._run(None, capsules_a, capsules_b, capsules_a, capsules_b, radii, owner, char_alive,
-                         n_chars, substeps=1)
+        return self._run(None, capsules_a, capsules_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars)
 
     def advance(self, dt: float, gravity: float, drag: float, lifetime: float, capsules_a, capsules_b, radii,
                 owner, char_alive, n_chars: int, prev_a=None, prev_b=None, max_substeps: int = 16,
                 owner_boxes=None, export_to=None, owner_stride: int = 0) -> Hits:
-        """step + collide, sub-stepped: k = substep_count(prev pose, pose) sub-steps of dt / k.
+        """step + collide, each bullet sub-stepped as the limbs near it need (kernels.bullet_hits.collide_bullets).
 
         prev_a, prev_b (C, 3): the limbs at the previous step (None: the limbs did not move, k = 1).
-        Sub-step j tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
-        number used is left in self.last_substeps. owner_boxes (n_chars, 4) float32, optional:
+        Sub-step j of k tests the limbs interpolated to (j + 1) / k of the way from prev to now; the
+        most any bullet used is left in self.last_substeps, each bullet's in self.bullet_substeps, and
+        how many used more than one in self.last_substepped. owner_boxes (n_chars, 4) float32, optional:
         x_min, z_min, x_max, z_max of each character's limbs in both poses grown by their radii;
-        characters whose box no bullet can reach this step are left out (of sub-step counting too),
-        and the preparation is one launch (prepare_limbs); each sub-step is one launch (advance_bullets). export_to:
+        characters whose box no bullet can reach this step are left out, and the preparation is one
+        launch (prepare_limbs); the bullets' step another (advance_bullets). export_to:
         (pos, vel, alive) host arrays to receive export() at the end of the step, or None. owner_stride
         S > 0 (with owner_boxes) says that owner[c] == c // S (each character's S capsules in one block,
         n_chars * S of them): the preparation then visits only the reachable characters' blocks.
@@ -351,7 +336,7 @@ class BulletPool:
         if prev_a is None or prev_b is None:
             prev_a, prev_b = capsules_a, capsules_b
         return self._run(args, prev_a, prev_b, capsules_a, capsules_b, radii, owner, char_alive, n_chars,
-                         substeps=None, max_substeps=max_substeps, owner_boxes=owner_boxes, export_to=export_to,
+                         max_substeps=max_substeps, owner_boxes=owner_boxes, export_to=export_to,
                          owner_stride=owner_stride)
 
     def threats(self, points, char_alive, horizon: float, reach: float) -> Threats:
@@ -387,28 +372,22 @@ class BulletPool:
 
     # -- internals ----------------------------------------------------------------------------
 
-    def _prepare_limbs(self, dt, a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, max_substeps,
-                       owner_stride) -> int:
-        """One launch of prepare_limbs (again if the limb grid had to grow); returns the sub-steps."""
+    def _prepare_limbs(self, dt, a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, owner_stride) -> None:
+        """One launch of prepare_limbs (again if the limb grid had to grow)."""
         from crowd_ik.kernels import projectiles as kp
 
-        max_substeps = int(max_substeps)
-        if not 1 <= max_substeps <= kp.MAX_SUBSTEPS:
-            raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
-        grid, out = self.limb_grid, self._substeps_out
+        grid = self.limb_grid
         n_chars = _length(owner_boxes)
         by_capsule = 0 if owner_stride else _length(a0)  # stride 0: the limb loops visit every capsule
         serial = serial_for((n_chars + by_capsule) * CHEAP + self._used + grid.nx * grid.nz * CELL, 1.0)
         launch = prepared(kp.prepare_limbs)
         for _ in range(2):
-            out[0] = 0
             launch(self.pos, self.vel, self.alive, dt, self.radius + MARK_MARGIN, *grid.geometry, grid.mask,
-                   owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, out, self.hit_key,
+                   owner_boxes, char_alive, self._reachable, a0, b0, a1, b1, radii, owner, self.hit_key,
                    self.hit_bullet, self.bullet_char, grid.cell_count, grid.cell_start, grid.cursor,
                    grid.total, grid.entries, self._used, owner_stride, serial)
             if not grid.grow(int(grid.total[0])):
                 break
-        return min(max(int(out[0]), 1), max_substeps)
 
     def _characters(self, n_chars: int) -> None:
         import taichi as ti
@@ -419,7 +398,7 @@ class BulletPool:
             self._reachable = ti.ndarray(ti.i32, shape=(n_chars,))  # (N,) live and within a bullet's reach
             self._n_chars = n_chars
 
-    def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, substeps, max_substeps=16,
+    def _run(self, step_args, a0, b0, a1, b1, radii, owner, char_alive, n_chars, max_substeps=16,
              owner_boxes=None, export_to=None, owner_stride=0) -> Hits:
         from crowd_ik.kernels import projectiles as kp
 
@@ -457,41 +436,37 @@ class BulletPool:
             owner = np.zeros(1, np.int32)
             char_alive = np.zeros(n_chars, np.int32)
             owner_boxes = None
+        max_substeps = int(max_substeps)
+        if not 1 <= max_substeps <= kp.MAX_SUBSTEPS:
+            raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
         self._characters(n_chars)
         grid = self.limb_grid
-        fused = step_args is not None and owner_boxes is not None
-        if fused:
-            substeps = self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes,
-                                           max_substeps, int(owner_stride) if n_caps else 0)
+        if step_args is not None and owner_boxes is not None:
+            self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes,
+                                int(owner_stride) if n_caps else 0)
             char_alive = self._reachable
         else:
             if step_args is not None:  # only the cells the bullets can reach this step take limbs
                 kp.mark_bullet_cells(self.pos, self.vel, self.alive, step_args[0], self.radius + MARK_MARGIN,
                                      *grid.geometry, grid.mask)
-            if substeps is None:
-                substeps = substep_count(a0, b0, a1, b1, radii, owner, char_alive, max_substeps)
             grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
             kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
-        self.last_substeps = substeps
-        for j in range(substeps):
-            s = (j + 1) / substeps
-            if step_args is not None:  # integrate + collide, apply (+ export): one launch per sub-step
-                dt, gravity, drag, lifetime = step_args
-                last = j == substeps - 1 and export_to is not None
-                out = (self.pos, self.vel, self.alive) if export_to is None else export_to  # written when `last`
-                prepared(kp.advance_bullets)(
-                    self.pos, self.vel, self.age, self.alive, self.prev, dt / substeps, gravity, drag, lifetime,
-                    self.far, self.radius, a0, b0, a1, b1, s, radii, owner, char_alive, *grid.geometry,
-                    grid.cell_start, grid.entries, j, substeps, self.hit_key, self.bullet_key, self.bullet_char,
-                    self.bullet_toi, self.bullet_point, self.hit_bullet, int(last), *out, self._used,
-                    serial_for(self._used))
-                continue
-            kp.collide_bullets(self.prev, self.pos, self.alive, self.radius, a0, b0, a1, b1, s, radii, owner,
-                               char_alive, *grid.geometry, grid.cell_start, grid.entries, j, substeps,
-                               self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point)
+        hits_in = (self.radius, a0, b0, a1, b1, radii, owner, char_alive, *grid.geometry, grid.cell_start, grid.entries,
+                   max_substeps, self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
+                   self.bullet_substeps)
+        if step_args is not None:  # integrate + collide, apply (+ export): one launch
+            out = (self.pos, self.vel, self.alive) if export_to is None else export_to
+            prepared(kp.advance_bullets)(self.pos, self.vel, self.age, self.alive, self.prev, *step_args, self.far,
+                                         *hits_in, self.hit_bullet, int(export_to is not None), *out, self._used,
+                                         serial_for(self._used))
+        else:
+            kp.collide_bullets(self.prev, self.pos, self.alive, *hits_in)
             kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
-        if export_to is not None and step_args is None:
-            self.export(*export_to)
+            if export_to is not None:
+                self.export(*export_to)
+        used = self.bullet_substeps[:self._used] if step_args is not None else self.bullet_substeps
+        self.last_substeps = int(used.max()) if len(used) else 0
+        self.last_substepped = int(np.count_nonzero(used > 1))
         chars = np.flatnonzero(self.hit_bullet >= 0).astype(np.int32)
         bullets = self.hit_bullet[chars]
         if len(chars) == 0:
