@@ -4,7 +4,7 @@ key = quantised toi << 32 | bullet id, each bullet sub-stepped as finely as the 
 
 import taichi as ti
 
-from crowd_ik.kernels.bullet_grid import cell_span, swept_box
+from crowd_ik.kernels.bullet_grid import cell_span
 
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
@@ -110,23 +110,42 @@ def limb_substeps(c, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1
 
 
 @ti.func
-def limb_near(c, mid, reach, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(),
+def limb_near(c, lo, hi, a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(),
               radius: ti.template()):
-    """Whether limb c, anywhere between its two poses, can come within reach of mid. Every interpolated
-    capsule lies in the convex hull of its four ends grown by its radius, so in the sphere about their
-    centroid m through the farthest end, grown by the radius."""
-    m = 0.25 * (a0[c] + b0[c] + a1[c] + b1[c])
-    r2 = ti.max(ti.max((a0[c] - m).norm_sqr(), (b0[c] - m).norm_sqr()), ti.max((a1[c] - m).norm_sqr(),
-                                                                             (b1[c] - m).norm_sqr()))
-    return (mid - m).norm() <= reach + ti.sqrt(r2) + radius[c]
+    """Whether limb c's box (its ends in both poses, grown by its radius: every pose in between lies inside)
+    overlaps the box [lo, hi] in x, y and z. The same test whichever way the grid lists the limbs."""
+    r = radius[c]
+    c_lo = ti.min(ti.min(a0[c], b0[c]), ti.min(a1[c], b1[c])) - r
+    c_hi = ti.max(ti.max(a0[c], b0[c]), ti.max(a1[c], b1[c])) + r
+    return (c_lo <= hi).all() and (c_hi >= lo).all()
+
+
+@ti.func
+def entry_limbs(e, m, x0, z0, x1, z1, stride, owner_box: ti.template(), ox, oz, cell, nx, nz, entries: ti.template()):
+    """The capsule ids [c0, c1) that grid entry e of cell m stands for, for a bullet whose (x, z) box is (x0, z0,
+    x1, z1): the entry's capsule (stride 0), or the block of the entry's owner (stride > 0) when the owner's
+    box overlaps the bullet's and m is the cell of the overlap's lower corner (so the bullet reads the block
+    once, in a cell that both boxes cover: one where the owner was binned and the bullet walks), else none."""
+    c0 = entries[e]
+    c1 = c0 + 1
+    if stride > 0:
+        o = c0
+        c0 = o * stride
+        c1 = c0
+        if owner_box[o, 0] <= x1 and owner_box[o, 2] >= x0 and owner_box[o, 1] <= z1 and owner_box[o, 3] >= z0:
+            i, _ = cell_span(ti.max(owner_box[o, 0], x0), x1, ox, cell, nx)
+            k, _ = cell_span(ti.max(owner_box[o, 1], z0), z1, oz, cell, nz)
+            if k * nx + i == m:
+                c1 = c0 + stride
+    return c0, c1
 
 
 @ti.func
 def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.template(), bullet_radius,
                    a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), radius: ti.template(),
                    owner: ti.template(), char_alive: ti.template(), ox, oz, cell, nx, nz, cell_start: ti.template(),
-                   entries: ti.template(), max_substeps, hit_key: ti.template(), bullet_key: ti.template(),
-                   bullet_char: ti.template(), bullet_toi: ti.template(), bullet_point: ti.template(),
+                   entries: ti.template(), stride, owner_box: ti.template(), max_substeps, hit_key: ti.template(),
+                   bullet_key: ti.template(), bullet_char: ti.template(), bullet_toi: ti.template(), bullet_point: ti.template(),
                    bullet_substeps: ti.template()):
     """collide_bullets for bullet p."""
     k = 0
@@ -134,22 +153,23 @@ def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.templat
         q0 = prev[p]
         q1 = pos[p]
         d = q1 - q0
-        mid = q0 + 0.5 * d
-        reach = 0.5 * d.norm() + bullet_radius
-        x0, z0, x1, z1 = swept_box(q0, q1, q0, q1, bullet_radius)
+        lo = ti.min(q0, q1) - bullet_radius
+        hi = ti.max(q0, q1) + bullet_radius
+        x0, z0, x1, z1 = lo[0], lo[2], hi[0], hi[2]
         i0, i1 = cell_span(x0, x1, ox, cell, nx)
         k0, k1 = cell_span(z0, z1, oz, cell, nz)
         k = 1
         best_t = 2.0
         best_c = -1
-        # the limbs near the segment: their sub-step counts, and while every one so far needs a single step, the
+        # the limbs near the segment (limb_near): their sub-step counts, and while every one so far needs a single step, the
         # whole segment against the end pose (what one step tests)
-        for kk in range(k0, k1 + 1):
-            for i in range(i0, i1 + 1):
-                m = kk * nx + i
-                for e in range(cell_start[m], cell_start[m + 1]):
-                    c = entries[e]
-                    if char_alive[owner[c]] != 0 and limb_near(c, mid, reach, a0, b0, a1, b1, radius):
+        ni = i1 - i0 + 1
+        for w in range((k1 - k0 + 1) * ni):  # the cells of the box, row by row
+            m = (k0 + w // ni) * nx + i0 + w % ni
+            for e in range(cell_start[m], cell_start[m + 1]):
+                c0, c1 = entry_limbs(e, m, x0, z0, x1, z1, stride, owner_box, ox, oz, cell, nx, nz, entries)
+                for c in range(c0, c1):
+                    if char_alive[owner[c]] != 0 and limb_near(c, lo, hi, a0, b0, a1, b1, radius):
                         k = ti.max(k, ti.min(limb_substeps(c, a0, b0, a1, b1, radius), max_substeps))
                         if k == 1:
                             t = sweep_sphere_capsule(q0, q1, a1[c], b1[c], bullet_radius + radius[c])
@@ -157,7 +177,7 @@ def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.templat
                                 best_t = t
                                 best_c = c
         toi = best_t
-        if k > 1:  # sub-chord j against the near limbs interpolated to their pose at (j + 1) / k; the first hit ends it
+        if k > 1:  # sub-segment j against the near limbs interpolated to (j + 1) / k; the first with a hit ends it
             best_c = -1
             j = 0
             while j < k and best_c < 0:
@@ -165,12 +185,13 @@ def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.templat
                 p0 = q0 + (j / k) * d
                 p1 = q0 + s * d
                 best_t = 2.0
-                for kk in range(k0, k1 + 1):
-                    for i in range(i0, i1 + 1):
-                        m = kk * nx + i
-                        for e in range(cell_start[m], cell_start[m + 1]):
-                            c = entries[e]
-                            if char_alive[owner[c]] != 0 and limb_near(c, mid, reach, a0, b0, a1, b1, radius):
+                for w in range((k1 - k0 + 1) * ni):
+                    m = (k0 + w // ni) * nx + i0 + w % ni
+                    for e in range(cell_start[m], cell_start[m + 1]):
+                        c0, c1 = entry_limbs(e, m, x0, z0, x1, z1, stride, owner_box, ox, oz, cell, nx, nz,
+                                             entries)
+                        for c in range(c0, c1):
+                            if char_alive[owner[c]] != 0 and limb_near(c, lo, hi, a0, b0, a1, b1, radius):
                                 a = (1.0 - s) * a0[c] + s * a1[c]
                                 b = (1.0 - s) * b0[c] + s * b1[c]
                                 t = sweep_sphere_capsule(p0, p1, a, b, bullet_radius + radius[c])
@@ -211,6 +232,8 @@ def collide_bullets(
     nz: ti.i32,
     cell_start: ndarray(dtype=ti.i32, ndim=1),
     entries: ndarray(dtype=ti.i32, ndim=1),
+    stride: ti.i32,
+    owner_box: ndarray(ndim=2),
     max_substeps: ti.i32,
     hit_key: ndarray(dtype=ti.i64, ndim=1),
     bullet_key: ndarray(dtype=ti.i64, ndim=1),
@@ -228,7 +251,8 @@ def collide_bullets(
     1, ... until one hits; with k = 1 the whole segment against the end pose. Limbs of dead characters are
     skipped. The grid (cell_start, entries) was built from both poses, so it holds every pose in between; the
     bullet walks the cells of its segment's box grown by bullet_radius (the capsules were binned with their
-    own radius, so overlapping shapes always share a cell).
+    own radius, so overlapping shapes always share a cell). stride > 0: the grid lists owners by their boxes
+    owner_box (N, 4), owner o holding capsules o * stride .. o * stride + stride - 1 (entry_limbs).
 
     Per bullet: the first sub-step with a hit, then the smallest (toi, capsule id) in it; then bullet_char[p] <-
     character, bullet_toi[p] <- time of impact as a fraction of the step, bullet_point[p] <- where,
@@ -237,8 +261,8 @@ def collide_bullets(
     """
     for p in range(pos.shape[0]):
         collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, ox, oz, cell,
-                       nx, nz, cell_start, entries, max_substeps, hit_key, bullet_key, bullet_char, bullet_toi,
-                       bullet_point, bullet_substeps)
+                       nx, nz, cell_start, entries, stride, owner_box, max_substeps, hit_key, bullet_key, bullet_char,
+                       bullet_toi, bullet_point, bullet_substeps)
 
 
 @ti.func

@@ -93,11 +93,12 @@ def prepare_limbs(
 ):
     """Everything a step's collisions need before the bullets move, in one launch:
     mark_bullet_cells (pad, dt) + reachable_owners (owner_box, char_alive -> reachable) +
-    build_grid of the reachable owners' limbs into the marked cells + reset_hits. The grid is valid when total[0]
-    <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again. Bullet loops stop
-    at n_slots (slots beyond were never used). stride > 0 says that capsule c belongs to owner c // stride
-    (each owner's capsules in one block): the limb loops then visit the reachable owners' blocks only,
-    instead of every capsule to look up its owner."""
+    build_grid of the reachable owners' limbs into the marked cells + reset_hits. The grid is valid when
+    total[0] <= entries.shape[0] afterwards; otherwise the caller grows entries and launches again. Bullet
+    loops stop at n_slots (slots beyond were never used). stride > 0 says that capsule c belongs to owner
+    c // stride (each owner's capsules in one block): the grid then lists the reachable owners by their
+    boxes instead of their limbs (a tenth of the entries for a humanoid, and no limb is read here), and
+    collide_bullet reads each listed owner's block."""
     ti.loop_config(serialize=serial)
     for c in range(mask.shape[0]):
         mask[c] = 0
@@ -111,8 +112,9 @@ def prepare_limbs(
         reachable[n] = reachable_owner(n, owner_box, char_alive, ox, oz, cell, nx, nz, mask)
         hit_key[n] = ti.i64(NO_HIT)
         hit_bullet[n] = -1
-    # the reachable owners' limbs, by capsule (any layout) or by owner block (stride > 0); in each pair of
-    # loops one runs zero times
+    # into the grid: the reachable owners' limbs (any layout), or with stride > 0 the reachable owners themselves
+    # by their boxes (collide_bullet then reads each one's block of limbs); in each pair of loops one runs zero
+    # times
     by_capsule = a0.shape[0] if stride == 0 else 0
     by_owner = owner_box.shape[0] if stride > 0 else 0
     ti.loop_config(serialize=serial)
@@ -122,8 +124,8 @@ def prepare_limbs(
     ti.loop_config(serialize=serial)
     for n in range(by_owner):
         if reachable[n] != 0:
-            for c in range(n * stride, (n + 1) * stride):
-                count_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cell_count)
+            count_box(owner_box[n, 0], owner_box[n, 1], owner_box[n, 2], owner_box[n, 3], ox, oz, cell, nx, nz, 1,
+                      mask, cell_count)
     ti.loop_config(serialize=serial)
     for _ in range(1):
         scan_cells(cell_count, cell_start, cursor, total)
@@ -134,8 +136,8 @@ def prepare_limbs(
     ti.loop_config(serialize=serial)
     for n in range(by_owner):
         if reachable[n] != 0:
-            for c in range(n * stride, (n + 1) * stride):
-                fill_limb(c, a0, b0, a1, b1, radius, ox, oz, cell, nx, nz, mask, cursor, entries)
+            fill_box(n, owner_box[n, 0], owner_box[n, 1], owner_box[n, 2], owner_box[n, 3], ox, oz, cell, nx, nz, 1,
+                     mask, cursor, entries)
 
 
 @ti.kernel
@@ -165,6 +167,8 @@ def advance_bullets(
     nz: ti.i32,
     cell_start: ndarray(dtype=ti.i32, ndim=1),
     entries: ndarray(dtype=ti.i32, ndim=1),
+    stride: ti.i32,
+    owner_box: ndarray(ndim=2),
     max_substeps: ti.i32,
     hit_key: ndarray(dtype=ti.i64, ndim=1),
     bullet_key: ndarray(dtype=ti.i64, ndim=1),
@@ -188,8 +192,8 @@ def advance_bullets(
     for p in range(n_slots):
         integrate_bullet(p, pos, vel, age, alive, prev, dt, gravity, drag, lifetime, far)
         collide_bullet(p, prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, ox, oz, cell, nx,
-                       nz, cell_start, entries, max_substeps, hit_key, bullet_key, bullet_char, bullet_toi, bullet_point,
-                       bullet_substeps)
+                       nz, cell_start, entries, stride, owner_box, max_substeps, hit_key, bullet_key, bullet_char,
+                       bullet_toi, bullet_point, bullet_substeps)
     ti.loop_config(serialize=serial)
     for p in range(n_slots):
         apply_hit(p, alive, bullet_char, bullet_key, hit_key, hit_bullet)

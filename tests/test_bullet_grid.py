@@ -63,7 +63,7 @@ def test_reachable_owners_match_twin():
     assert 5 < want.sum() < owner_alive.sum()
 
 
-def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
+def test_owner_boxes_give_the_same_hits_and_a_far_flailing_limb_sub_steps_nobody():
     start, end, a, b, radius, owner, char_alive = _scene(15, p=120)
     n = len(char_alive)
     vel = _f32((end - start) * 60.0)
@@ -88,16 +88,12 @@ def test_owner_boxes_give_the_same_hits_and_ignore_unreachable_flailing_limbs():
         results.append((pool.last_substeps, hits, pool.struck()))
         np.testing.assert_array_equal(out[0], pool.positions())  # exported at the end of the step
         np.testing.assert_array_equal(out[2] != 0, pool.alive_mask())
-    assert results[0][0] == 60  # ceil(3 m / 0.05 m): the far limb sub-steps every bullet
-    assert results[1][0] == 1  # ... unless the pool knows no bullet can reach it
-    # the near limbs did not move: the same winners either way (toi up to the gravity integration of
-    # 60 sub-steps; losers differ: on later sub-steps a character already hit no longer stops bullets)
+    # the far limb sub-steps no bullet (none comes near it), and the hits are the same either way
+    assert results[0][0] == results[1][0] == 1
     (_, h0, s0), (_, h1, s1) = results
     assert len(h1.chars) > 5
-    np.testing.assert_array_equal(h0.chars, h1.chars)
-    np.testing.assert_array_equal(h0.bullets, h1.bullets)
-    np.testing.assert_array_equal(s0[h0.bullets], s1[h1.bullets])
-    np.testing.assert_allclose(h0.toi, h1.toi, atol=1e-3)
+    for x, y in zip(h0 + (s0,), h1 + (s1,)):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_owner_stride_visits_the_same_limbs_by_owner_block():

@@ -133,16 +133,38 @@ def test_two_characters_two_winners_and_dead_characters_are_skipped():
         assert pool.count_alive() == 2 - len(want)
 
 
-def test_substep_count_matches_twin():
-    rng = np.random.default_rng(7)
-    a, b, radius, owner = _capsules(rng, 20, 3)
-    a1, b1 = _f32(a + rng.normal(0, 0.2, a.shape)), _f32(b + rng.normal(0, 0.2, b.shape))
-    char_alive = (rng.random(20) < 0.7).astype(np.int32)
-    want = ref.substeps(a, b, a1, b1, radius, owner, char_alive)
-    assert 1 < want < 64
-    assert substep_count(a, b, a1, b1, radius, owner, char_alive, max_substeps=64) == want
-    assert substep_count(a, b, a, b, radius, owner, char_alive) == 1
-    assert substep_count(a, b, a1, b1, radius, owner, char_alive, max_substeps=2) == 2
+@pytest.mark.parametrize("seed", [7, 8])
+def test_moving_limbs_sub_step_each_bullet_as_the_brute_force_twin(seed):
+    start, end, a, b, radius, owner, char_alive = _scene(seed, p=400)
+    rng = np.random.default_rng(seed)
+    prev_a, prev_b = _f32(a + rng.normal(0, 0.12, a.shape)), _f32(b + rng.normal(0, 0.12, b.shape))
+    n = len(char_alive)
+    pool = BulletPool(len(start), bounds=(-8, -8, 8, 8))
+    pool.spawn(start, _f32((end - start) / DT))
+    hits = pool.advance(DT, 0.0, 0.0, 3.0, a, b, radius, owner, char_alive, n, prev_a=prev_a, prev_b=prev_b,
+                        max_substeps=32)
+    q0, q1 = pool.prev.to_numpy(), pool.positions()
+    alive = np.ones(len(start), np.int32)
+    want_char, want_toi, want_k, want_winner = ref.collide_moving(q0, q1, alive, 0.03, prev_a, prev_b, a, b, radius,
+                                                                  owner, char_alive, n, max_substeps=32)
+    np.testing.assert_array_equal(pool.bullet_substeps, want_k)
+    assert (want_k > 1).sum() > 20 and (want_k == 1).sum() > 20 and pool.last_substeps == want_k.max()
+    assert pool.last_substepped == (want_k > 1).sum()
+    # a graze within 1e-4 m of contact may go either way in float32: set those bullets aside
+    lo = ref.collide_moving(q0, q1, alive, 0.03 - 1e-4, prev_a, prev_b, a, b, radius, owner, char_alive, n, 32)[0]
+    hi = ref.collide_moving(q0, q1, alive, 0.03 + 1e-4, prev_a, prev_b, a, b, radius, owner, char_alive, n, 32)[0]
+    clear = lo == hi
+    assert clear.mean() > 0.97 and (want_char[clear & (want_k > 1)] >= 0).sum() > 10
+    struck = pool.struck()
+    np.testing.assert_array_equal(struck[clear], want_char[clear])
+    hit = clear & (want_char >= 0)
+    np.testing.assert_allclose(pool.bullet_toi.to_numpy()[hit], want_toi[hit], atol=2e-5)
+    settled = np.array([clear[(want_char == c) | (lo == c) | (hi == c)].all() for c in range(n)])
+    got_winner = np.full(n, -1)
+    got_winner[hits.chars] = hits.bullets
+    assert settled.sum() >= n - 3 and (want_winner[settled] >= 0).sum() > 10
+    np.testing.assert_array_equal(got_winner[settled], want_winner[settled])
+    np.testing.assert_array_equal(pool.alive_mask(), struck < 0)  # every bullet that struck a limb died
 
 
 def test_substeps_catch_a_limb_sweeping_through_a_slow_bullet():
@@ -166,6 +188,22 @@ def test_substeps_catch_a_limb_sweeping_through_a_slow_bullet():
     # the sub-step whose pose first reaches within R: limb at x = -2 + 4 s >= 0.01 - 0.08, s = (j + 1) / 64
     j = int(np.ceil((0.01 - 0.08 + 2.0) / 4.0 * 64)) - 1
     assert j / 64 <= hits.toi[0] <= (j + 1) / 64
+
+
+def test_only_the_bullets_near_a_fast_limb_sub_step():
+    # one character: an arm swinging 1 m at x = 0, a still leg at x = 3; a bullet passes each, a third flies clear
+    prev_a, prev_b = _f32([[-0.5, 1.5, 0], [3, 0.2, 0]]), _f32([[-0.5, 1.9, 0], [3, 0.8, 0]])
+    a, b = _f32([[0.5, 1.5, 0], [3, 0.2, 0]]), _f32([[0.5, 1.9, 0], [3, 0.8, 0]])
+    radius, owner, alive = _f32([0.05, 0.05]), np.zeros(2, np.int32), np.ones(1, np.int32)
+    origins = [[0.0, 1.7, -0.2], [3.0, 0.5, -0.2], [6.0, 1.0, -0.2]]
+    pool = BulletPool(4)
+    pool.spawn(origins, [[0.0, 0.0, 24.0]] * 3)
+    hits = pool.advance(DT, 0.0, 0.0, 3.0, a, b, radius, owner, alive, 1, prev_a=prev_a, prev_b=prev_b)
+    assert pool.bullet_substeps[:3].tolist() == [16, 1, 1]  # ceil(1 m / 0.05 m) = 20, capped at max_substeps
+    assert pool.last_substeps == 16 and pool.last_substepped == 1
+    assert pool.struck()[:3].tolist() == [0, 0, -1] and hits.chars.tolist() == [0]
+    # the arm crosses x = 0 half-way through the step, the bullet reaches z = 0 at 0.5: the bullet on the leg wins
+    assert hits.bullets.tolist() == [1]
 
 
 def test_advance_without_previous_pose_equals_step_then_collide():

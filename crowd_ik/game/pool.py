@@ -213,6 +213,7 @@ class BulletPool:
         self._spawn_in = None  # spawn_bullets' slots, origins and velocities, kept (grown when a spawn needs more)
         self.last_substeps = 0    # the most sub-steps a bullet took on the last collide/advance
         self.last_substepped = 0  # how many bullets took more than one
+        self._no_boxes = np.zeros((1, 4), np.float32)  # owner boxes the hit kernels take when the grid lists capsules
         # slots [0, _used) have been alive at some time; spawn takes the lowest free slots, so this stays
         # near the largest number of bullets in flight at once, and the per-step kernels loop only over it
         self._used = 0
@@ -441,18 +442,20 @@ class BulletPool:
             raise ValueError(f"max_substeps: expected 1..{kp.MAX_SUBSTEPS} (got {max_substeps})")
         self._characters(n_chars)
         grid = self.limb_grid
+        stride = 0  # the limb grid lists capsules; with stride > 0 owners (prepare_limbs)
         if step_args is not None and owner_boxes is not None:
-            self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes,
-                                int(owner_stride) if n_caps else 0)
+            stride = int(owner_stride) if n_caps else 0
+            self._prepare_limbs(step_args[0], a0, b0, a1, b1, radii, owner, char_alive, owner_boxes, stride)
             char_alive = self._reachable
         else:
+            owner_boxes = self._no_boxes
             if step_args is not None:  # only the cells the bullets can reach this step take limbs
                 kp.mark_bullet_cells(self.pos, self.vel, self.alive, step_args[0], self.radius + MARK_MARGIN,
                                      *grid.geometry, grid.mask)
             grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
             kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
         hits_in = (self.radius, a0, b0, a1, b1, radii, owner, char_alive, *grid.geometry, grid.cell_start, grid.entries,
-                   max_substeps, self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
+                   stride, owner_boxes, max_substeps, self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
                    self.bullet_substeps)
         if step_args is not None:  # integrate + collide, apply (+ export): one launch
             out = (self.pos, self.vel, self.alive) if export_to is None else export_to

@@ -117,21 +117,68 @@ def collide(prev, pos, alive, bullet_radius, a, b, radius, owner, char_alive, n_
     hit = np.isfinite(t)
     bullet_char = np.where(hit, owner[first] if len(owner) else -1, -1).astype(np.int32)
     bullet_toi = np.where(hit, t, -1.0)
+    return bullet_char, bullet_toi, _winners(bullet_char, bullet_toi, n_chars)
+
+
+def bullet_substeps(prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, max_substeps):
+    """(P,) int32 sub-steps per bullet: over the live limbs whose box (both poses, grown by the radius) overlaps
+    the bullet's segment box grown by bullet_radius, the most ceil(max end displacement / radius), in
+    [1, max_substeps]; 0 for a dead bullet."""
+    prev, pos = np.asarray(prev, np.float64), np.asarray(pos, np.float64)
+    ends = np.stack([a0, b0, a1, b1]).astype(np.float64)
+    r = np.asarray(radius, np.float64)[:, None]
+    c_lo, c_hi = ends.min(axis=0) - r, ends.max(axis=0) + r
+    b_lo = np.minimum(prev, pos) - bullet_radius
+    b_hi = np.maximum(prev, pos) + bullet_radius
+    near = np.all((c_lo[None] <= b_hi[:, None]) & (c_hi[None] >= b_lo[:, None]), axis=2)  # (P, C)
+    near &= (np.asarray(char_alive)[np.asarray(owner)] != 0)[None]
+    move = np.maximum(np.linalg.norm(ends[2] - ends[0], axis=1), np.linalg.norm(ends[3] - ends[1], axis=1))
+    k_limb = np.minimum(np.ceil(np.minimum(move / r[:, 0], 2.0**20)), max_substeps)
+    k = np.max(np.where(near, k_limb[None], 1), axis=1, initial=1).astype(np.int32)
+    return np.where(np.asarray(alive) != 0, k, 0)
+
+
+def collide_moving(prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, n_chars,
+                   max_substeps=16):
+    """Brute-force hits of one step against limbs moving linearly from (a0, b0) to (a1, b1).
+
+    Bullet p takes k = bullet_substeps sub-steps: sub-segment j of its segment against the limbs at
+    (j + 1) / k of the way, j = 0, 1, ... until one hits. Returns (bullet_char (P,) int32, bullet_toi
+    (P,) float64 fraction of the step, k (P,) int32, hit_bullet (N,) int32) as collide does.
+    """
+    prev, pos = np.asarray(prev, np.float64), np.asarray(pos, np.float64)
+    k = bullet_substeps(prev, pos, alive, bullet_radius, a0, b0, a1, b1, radius, owner, char_alive, max_substeps)
+    owner = np.asarray(owner)
+    live_c = np.asarray(char_alive)[owner] != 0
+    R = bullet_radius + np.asarray(radius, np.float64)
+    bullet_char = np.full(len(prev), -1, np.int32)
+    bullet_toi = np.full(len(prev), -1.0)
+    for p in np.flatnonzero(k > 0):
+        for j in range(k[p]):
+            s = (j + 1) / k[p]
+            a = (1 - s) * np.asarray(a0, np.float64) + s * np.asarray(a1, np.float64)
+            b = (1 - s) * np.asarray(b0, np.float64) + s * np.asarray(b1, np.float64)
+            q0 = prev[p] + j / k[p] * (pos[p] - prev[p])
+            q1 = prev[p] + s * (pos[p] - prev[p])
+            t = np.where(live_c, sweep_toi(q0[None], q1[None], a, b, R), -1.0)
+            t = np.where(t >= 0, t, np.inf)
+            if np.isfinite(t).any():
+                c = int(np.argmin(t))  # lowest capsule id among equal times
+                bullet_char[p] = owner[c]
+                bullet_toi[p] = (j + t[c]) / k[p]
+                break
+    return bullet_char, bullet_toi, k, _winners(bullet_char, bullet_toi, n_chars)
+
+
+def _winners(bullet_char, bullet_toi, n_chars):
+    """(N,) int32: per character the bullet with the smallest (quantised toi, bullet id) that struck it, or -1."""
     hit_bullet = np.full(n_chars, -1, np.int32)
-    p = np.flatnonzero(hit)
+    p = np.flatnonzero(bullet_char >= 0)
     qt = np.minimum(np.floor(bullet_toi[p] * 2**TOI_BITS), 2**TOI_BITS - 1)
     order = np.lexsort((p, qt))  # by quantised toi, then bullet id
     chars, firsts = np.unique(bullet_char[p][order], return_index=True)
     hit_bullet[chars] = p[order][firsts]
-    return bullet_char, bullet_toi, hit_bullet
-
-
-def substeps(a0, b0, a1, b1, radius, owner, char_alive):
-    """max over live limbs of ceil(max end displacement / radius), at least 0."""
-    live = np.asarray(char_alive)[np.asarray(owner)] != 0
-    move = np.maximum(np.linalg.norm(a1 - a0, axis=1), np.linalg.norm(b1 - b0, axis=1))
-    k = np.ceil(np.minimum(move / radius, 2.0**20))[live]
-    return int(k.max()) if len(k) else 0
+    return hit_bullet
 
 
 def threats(points, char_alive, pos, vel, alive, horizon, reach):
