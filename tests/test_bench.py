@@ -224,6 +224,7 @@ def test_run_reports_the_game_and_targets(tiny_run):
     assert game["frame_ms"]["median"] == pytest.approx(
         game["warm"]["solve_ms"]["median"] + game["capsules_ms"]["median"] + game["bullets_ms"]["median"], rel=0.5)
     assert game["fits"] == (game["frame_ms"]["p95"] <= options.FRAME_MS) and game["bullets_alive"] > 0
+    assert 0.0 <= game["substepped_share"] <= 1.0 and game["mean_substeps"] >= 1
     names = {t["name"] for t in data["targets"]}
     assert "chain16 fabrik speed-up vs NumPy" in names and any(n.startswith("game frame") for n in names)
 

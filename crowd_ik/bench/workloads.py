@@ -249,7 +249,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
 
     offsets = _smooth_offsets(n, E, SEED + 2)
     feet = np.array([name.startswith("foot") for name in rig.effector_names])
-    solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, motion, hits = [], [], [], [], [], [], [], [], [], 0
+    solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, shares, motion, hits = [], [], [], [], [], [], [], [], [], [], 0
     for f in range(GAME_WARMUP_FRAMES + frames):
         targets = wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0))  # feet planted
         t0 = time.perf_counter()
@@ -277,6 +277,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         live.append(pool.count_alive())
         hits += len(step_hits.chars)
         subs.append(pool.last_substeps)
+        shares.append(pool.last_substepped / max(1, np.count_nonzero(pool.bullet_substeps)))  # of the bullets flown
     frame_ms = np.asarray(solve_ms) + np.asarray(caps_ms) + np.asarray(bullet_ms)
     frame = _ms_stats(frame_ms)
     return dict(
@@ -286,7 +287,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
                   success_rate=float(np.mean(conv)), mean_error=float(np.mean(err))),
         capsules_ms=_ms_stats(caps_ms), bullets_ms=_ms_stats(bullet_ms), frame_ms=frame,
         bullets_alive=float(np.mean(live)), hits=int(hits), mean_substeps=float(np.mean(subs)),
-        max_substeps=int(max(subs)),
+        max_substeps=int(max(subs)), substepped_share=float(np.mean(shares)),
         limb_step_m=float(np.median([m[0] for m in motion])), limb_step_max_m=float(max(m[1] for m in motion)),
         budget_ms=FRAME_MS, fits=bool(frame["p95"] <= FRAME_MS),
     )
