@@ -28,7 +28,7 @@ def test_collide_matches_brute_force(seed):
     assert (want_char[clear] >= 0).sum() > 50 and (want_char[clear] < 0).sum() > 50
     np.testing.assert_array_equal(struck[clear], want_char[clear])
     hit = clear & (want_char >= 0)
-    np.testing.assert_allclose(pool.bullet_toi.to_numpy()[hit], want_toi[hit], atol=2e-5)
+    np.testing.assert_allclose(pool.bullet_toi[hit], want_toi[hit], atol=2e-5)
 
     # per character: the winner by (toi, id), where every bullet that struck it is unambiguous
     settled = np.array([clear[(want_char == c) | (lo == c) | (hi == c)].all() for c in range(len(char_alive))])
@@ -158,7 +158,7 @@ def test_moving_limbs_sub_step_each_bullet_as_the_brute_force_twin(seed):
     struck = pool.struck()
     np.testing.assert_array_equal(struck[clear], want_char[clear])
     hit = clear & (want_char >= 0)
-    np.testing.assert_allclose(pool.bullet_toi.to_numpy()[hit], want_toi[hit], atol=2e-5)
+    np.testing.assert_allclose(pool.bullet_toi[hit], want_toi[hit], atol=2e-5)
     settled = np.array([clear[(want_char == c) | (lo == c) | (hi == c)].all() for c in range(n)])
     got_winner = np.full(n, -1)
     got_winner[hits.chars] = hits.bullets

@@ -4,7 +4,7 @@ All state is `ti.ndarray`s allocated once (per-character outputs when the charac
 seen); each phase is one kernel launch from `crowd_ik.kernels.projectiles`. Capsule and character
 inputs may be NumPy arrays (converted and checked here) or `ti.ndarray`s (trusted, as inside the game).
 Small results the host reads every step (the grid's entry count, each character's winning bullet,
-the threats) are NumPy arrays the kernels write directly: on the CPU backend that costs nothing,
+each bullet's time and point of impact and sub-steps, the threats) are NumPy arrays the kernels write directly: on the CPU backend that costs nothing,
 where a `to_numpy` is one more launch (~0.1 ms) per array.
 
 Rules (DESIGN "Game rules"):
@@ -201,8 +201,8 @@ class BulletPool:
         self.alive = ti.ndarray(ti.i32, shape=(P,))
         self.bullet_char = ti.ndarray(ti.i32, shape=(P,))    # character struck on the last collide, -1
         self.bullet_key = ti.ndarray(ti.i64, shape=(P,))
-        self.bullet_toi = ti.ndarray(ti.f32, shape=(P,))
-        self.bullet_point = ti.ndarray(vec3, shape=(P,))
+        self.bullet_toi = np.zeros(P, np.float32)        # host memory, like the other per-hit results: the kernels
+        self.bullet_point = np.zeros((P, 3), np.float32)  # write them in place, and Hits reads them without a launch
         self.bullet_char.fill(-1)
         limb_cell = cell_size if limb_cell_size is None else _positive("limb_cell_size", limb_cell_size)
         self.limb_grid = Grid(bounds, limb_cell, 4 * capsule_capacity)
@@ -455,8 +455,8 @@ class BulletPool:
             grid.build(a0, b0, a1, b1, radii, 0.0, owner, char_alive, masked=step_args is not None)
             kp.reset_hits(self.hit_key, self.hit_bullet, self.bullet_char)
         hits_in = (self.radius, a0, b0, a1, b1, radii, owner, char_alive, *grid.geometry, grid.cell_start, grid.entries,
-                   stride, owner_boxes, max_substeps, self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi, self.bullet_point,
-                   self.bullet_substeps)
+                   stride, owner_boxes, max_substeps, self.hit_key, self.bullet_key, self.bullet_char, self.bullet_toi,
+                   self.bullet_point, self.bullet_substeps)
         if step_args is not None:  # integrate + collide, apply (+ export): one launch
             out = (self.pos, self.vel, self.alive) if export_to is None else export_to
             prepared(kp.advance_bullets)(self.pos, self.vel, self.age, self.alive, self.prev, *step_args, self.far,
@@ -474,4 +474,4 @@ class BulletPool:
         bullets = self.hit_bullet[chars]
         if len(chars) == 0:
             return Hits(chars, bullets, np.zeros(0, np.float32), np.zeros((0, 3), np.float32))
-        return Hits(chars, bullets, self.bullet_toi.to_numpy()[bullets], self.bullet_point.to_numpy()[bullets])
+        return Hits(chars, bullets, self.bullet_toi[bullets], self.bullet_point[bullets])
