@@ -196,7 +196,7 @@ def format_game(g: dict) -> str:
             f"{g['frame_ms']['median']:.2f} / {g['frame_ms']['p95']:.2f} ms "
             f"vs {g['budget_ms']:.1f} ms: {'fits' if g['fits'] else 'does NOT fit'} "
             f"\n  ({g['hits']} hits, {g['bullets_alive']:.0f} bullets alive, "
-            f"{100 * g.get('substepped_share', 0):.1f}% of them sub-stepped, up to {g['mean_substeps']:.1f} sub-steps "
+            f"{100 * g.get('substepped_share', 0):.2f}% of them sub-stepped, up to {g['mean_substeps']:.1f} sub-steps "
             f"a frame on average;\n  joints moved {1e3 * g['limb_step_m']:.1f} mm per frame (median character), "
             f"{1e3 * g['limb_step_max_m']:.0f} mm at most)" + format_scene(g.get("scene")))
 
