@@ -145,8 +145,8 @@ def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.templat
                    a0: ti.template(), b0: ti.template(), a1: ti.template(), b1: ti.template(), radius: ti.template(),
                    owner: ti.template(), char_alive: ti.template(), ox, oz, cell, nx, nz, cell_start: ti.template(),
                    entries: ti.template(), stride, owner_box: ti.template(), max_substeps, hit_key: ti.template(),
-                   bullet_key: ti.template(), bullet_char: ti.template(), bullet_toi: ti.template(), bullet_point: ti.template(),
-                   bullet_substeps: ti.template()):
+                   bullet_key: ti.template(), bullet_char: ti.template(), bullet_toi: ti.template(),
+                   bullet_point: ti.template(), bullet_substeps: ti.template()):
     """collide_bullets for bullet p."""
     k = 0
     if alive[p] != 0:
@@ -161,8 +161,8 @@ def collide_bullet(p, prev: ti.template(), pos: ti.template(), alive: ti.templat
         k = 1
         best_t = 2.0
         best_c = -1
-        # the limbs near the segment (limb_near): their sub-step counts, and while every one so far needs a single step, the
-        # whole segment against the end pose (what one step tests)
+        # the limbs near the segment (limb_near): their sub-step counts, and while every one so far needs a single
+        # step, the whole segment against the end pose (what one step tests)
         ni = i1 - i0 + 1
         for w in range((k1 - k0 + 1) * ni):  # the cells of the box, row by row
             m = (k0 + w // ni) * nx + i0 + w % ni

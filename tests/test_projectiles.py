@@ -4,7 +4,7 @@ crowd_ik.game.pool, against the brute-force NumPy twin and hand-built scenes."""
 import numpy as np
 import pytest
 
-from bullet_cases import DT, _capsules, _f32, _fire, _owner_boxes, _post, _scene
+from bullet_cases import DT, _f32, _fire, _owner_boxes, _post, _scene
 from crowd_ik.game.pool import BulletPool
 from crowd_ik.reference import projectiles as ref
 

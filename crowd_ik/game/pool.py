@@ -4,8 +4,9 @@ All state is `ti.ndarray`s allocated once (per-character outputs when the charac
 seen); each phase is one kernel launch from `crowd_ik.kernels.projectiles`. Capsule and character
 inputs may be NumPy arrays (converted and checked here) or `ti.ndarray`s (trusted, as inside the game).
 Small results the host reads every step (the grid's entry count, each character's winning bullet,
-each bullet's time and point of impact and sub-steps, the threats) are NumPy arrays the kernels write directly: on the CPU backend that costs nothing,
-where a `to_numpy` is one more launch (~0.1 ms) per array.
+each bullet's time and point of impact and sub-steps, the threats) are NumPy arrays the kernels
+write directly: on the CPU backend that costs nothing, where a `to_numpy` is one more launch
+(~0.1-0.3 ms) per array.
 
 Rules (DESIGN "Game rules"):
 - spawn fills the lowest free slots first; a request larger than the free slots keeps its first

@@ -1,8 +1,8 @@
 """Swept sphere against capsules, analytic: when a moving bullet first touches a limb (NumPy, float64).
 
 Ericson, Real-Time Collision Detection, 5.3.7: a segment against a cylinder and spheres. The game's
-player-versus-shooter hits use it, and it is the independent oracle of the kernels' golden-section +
-bisection search (crowd_ik/reference/projectiles.py).
+player-versus-shooter hits use it, and it is the independent oracle of the kernels' cutting-plane +
+Newton search (crowd_ik/reference/projectiles.py).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """NumPy twins of kernels/projectiles.py: brute force (no grid), vectorised, written for clarity.
 
 The swept test here is analytic (Ericson, Real-Time Collision Detection, 5.3.7: segment against
-cylinder and spheres), an independent oracle for the kernels' golden-section + bisection search.
+cylinder and spheres), an independent oracle for the kernels' cutting-plane + Newton search.
 Shapes and units as in the kernels: P bullets, C capsules, N characters; metres, seconds.
 """
 
