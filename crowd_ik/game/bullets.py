@@ -24,12 +24,13 @@ from crowd_ik.game.pool import BulletPool
 from crowd_ik.geometry.sweep import sweep_toi
 
 
-# Cells of the limbs' grid, metres: about a limb's length. Finer than the threat grid's (the characters' spacing),
-# so that a bullet meets fewer candidate limbs and fewer characters count as within its reach (the sub-steps are
-# counted over theirs). 10,000 humanoids, 4096 bullets (bench game workload): bullets' step median / p95 12.7 / 30.6
-# ms at 1 m cells, 9.5 / 18.2 at 0.7, 9.2 / 18.3 at 0.5, 8.7 / 15.3 at 0.41 (256 cells across, the most a grid has);
-# stress_10k as played 1.27 -> 1.00 ms
-LIMB_CELL = 0.5
+# Cells of the limbs' grid, metres. The game's grid lists characters by their boxes (BulletPool owner_stride), a
+# metre or so across: finer cells put each character in more of them (more atomics to build it), coarser ones give a
+# bullet more characters to box-test. 10,000 humanoids, 4096 bullets (bench game workload, stop 39, 2-core Xeon):
+# bullets' step median 3.77-3.87 ms at 0.5 m, 3.57 at 0.75, 3.39-3.45 at 1.0, 3.36 at 1.5, 3.43 at 2.0 (prepare_limbs
+# 1.34 -> 0.73-0.78 ms from 0.5 to 1 m, advance_bullets 1.8-1.9 ms throughout). When limbs were binned one by one
+# (until stop 38), 0.5 m was best: 9.2 ms against 12.7 at 1 m.
+LIMB_CELL = 1.0
 
 
 class Bullets:
