@@ -23,7 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from crowd_ik.checks import is_integer, is_number
-from crowd_ik.solvers.limits import limit_pseudo_angles
+from crowd_ik.solvers.limits import limit_half_turns, limit_pseudo_angles
 
 # Joint kinds and their DOF counts; the DOF count doubles as the kind code the kernels read.
 KINDS = {"fixed": 0, "hinge": 1, "universal": 2, "ball": 3}
@@ -348,7 +348,8 @@ class Rig:
 
         parent (J,), offset (J,3), kind (J,) 0 fixed/1 hinge/2 universal/3 ball, axes (J,2,3),
         dof_start (J,), lo/hi (DOF+1,) (one padding entry so a DOF-less rig still has an array), lim_p (DOF+1, 2)
-        their pseudo-angles (solvers.limits.limit_pseudo_angles),
+        their pseudo-angles (solvers.limits.limit_pseudo_angles), lim_h (DOF+1, 4) their half-angles' cosines and
+        sines (solvers.limits.limit_half_turns),
         cone (J,) (0 = none), eff_joint (E,), eff_axis (E,3), eff_has_axis (E,), radius (J,), bone (J, 4): the
         unit direction of each joint's offset and its length (the root's: 0), which FABRIK's passes use.
         """
@@ -368,6 +369,7 @@ class Rig:
             lo=np.concatenate([np.clip(lo, -big, big), [0.0]]).astype(np.float32),
             hi=np.concatenate([np.clip(hi, -big, big), [0.0]]).astype(np.float32),
             lim_p=limit_pseudo_angles(np.append(lo, 0.0), np.append(hi, 0.0)),
+            lim_h=limit_half_turns(np.append(lo, 0.0), np.append(hi, 0.0)),
             cone=np.array([j.cone or 0.0 for j in self.joints], np.float32),
             eff_joint=np.array([e.joint for e in self.effectors], np.int32),
             eff_axis=np.array([e.axis or (0.0, 0.0, 0.0) for e in self.effectors], np.float32),

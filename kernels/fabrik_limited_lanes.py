@@ -29,7 +29,7 @@ from crowd_ik.kernels import lane_align as la
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
-from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.kernels.quat import qrot, yaw_quat
 
@@ -58,10 +58,9 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     J_, E_ = (MAX_STREAMS, max_joints), (MAX_STREAMS, max_effectors)
-    fx, fy, fz, rx, ry, rz, rw, lx, ly, lz, lw, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=J_)
-                                                                  for _ in range(15))
-    tx, ty, tz, tw, dx, dy, dz = (ti.Vector.field(L, ti.f32, shape=E_) for _ in range(7))
-    ox, oy, oz, yx, yy, yz, yw = (ti.Vector.field(L, ti.f32, shape=MAX_STREAMS) for _ in range(7))
+    fx, fy, fz, rx, ry, rz, rw, lx, ly, lz, lw, wx, wy, wz, aw = lane_rows(L, J_, 15)
+    tx, ty, tz, tw, dx, dy, dz = lane_rows(L, E_, 7)
+    ox, oy, oz, yx, yy, yz, yw = lane_rows(L, (MAX_STREAMS,), 7)
 
     @ti.func
     def last_active(j, child_start: ti.template(), child_list: ti.template(), active: ti.template()):
@@ -146,7 +145,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
     @ti.func
     def two_bone_swing(s, j, qx, qy, qz, qw, ix, iy, iz, iw, jx, jy, jz, on, kind: ti.template(),
                        axes: ti.template(), offset: ti.template(), lo: ti.template(), hi: ti.template(),
-                       lim_p: ti.template(), cone: ti.template(), dof_start: ti.template(),
+                       lim_p: ti.template(), lim_h: ti.template(), cone: ti.template(), dof_start: ti.template(),
                        child_start: ti.template(), child_list: ti.template(), active: ti.template()):
         """fabrik.two_bone_swing per lane: (the rotation of j, the lanes where the limb was solved)."""
         outx, outy, outz, outw = qx, qy, qz, qw
@@ -221,7 +220,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                                 cx, cy, cz, cw = mx, my, mz, mw
                                 if which == 1:
                                     cx, cy, cz, cw = ex, ey, ez, ew
-                                cx, cy, cz, cw = lim.constrain_ball(cx, cy, cz, cw, lo, hi, lim_p, dof_start[j],
+                                cx, cy, cz, cw = lim.constrain_ball(cx, cy, cz, cw, lo, hi, lim_p, lim_h, dof_start[j],
                                                                     cone[j], first, sv)
                                 gx, gy, gz = lm.qrot(cx, cy, cz, cw, vx, vy, vz)
                                 off = lm.norm3(gx - vwx, gy - vwy, gz - vwz)
@@ -243,7 +242,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
 
     @ti.func
     def sweep(s, on, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
-              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), cone: ti.template(),
+              lo: ti.template(), hi: ti.template(), lim_p: ti.template(), lim_h: ti.template(), cone: ti.template(),
               dof_start: ti.template(), child_start: ti.template(), child_list: ti.template(),
               active: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), use_orient):
         """fabrik.recover_and_constrain per lane: rotations from the proposals, clamped, then FK."""
@@ -280,8 +279,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             s_cross += wc * lm.dot3(ax.x, ax.y, ax.z, *lm.cross(ux, uy, uz, vx, vy, vz))
                             s_dot += wc * lm.dot3(ux, uy, uz, vx, vy, vz)
                     turn = (s_cross != 0.0) | (s_dot != 0.0)
-                    h = 0.5 * lt.atan2(s_cross, s_dot)
-                    sh, ch = lt.sin_cos(h)
+                    ch, sh = lm.half_turn(s_dot, s_cross)  # half of atan2(s_cross, s_dot), scaled: normalised below
                     hx, hy, hz, hw = lm.qnormalize(*lm.qmul(ax.x * sh, ax.y * sh, ax.z * sh, ch, qx, qy, qz, qw))
                     qx, qy, qz, qw = ti.select(turn, hx, qx), ti.select(turn, hy, qy), ti.select(turn, hz, qz), \
                         ti.select(turn, hw, qw)
@@ -297,7 +295,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                     free = on
                     if n_active == 1 and k == 3:
                         hx, hy, hz, hw, limb = two_bone_swing(s, j, qx, qy, qz, qw, ix, iy, iz, iw, jx, jy, jz, on,
-                                                              kind, axes, offset, lo, hi, lim_p, cone, dof_start,
+                                                              kind, axes, offset, lo, hi, lim_p, lim_h, cone, dof_start,
                                                               child_start, child_list, active)
                         qx, qy, qz, qw = hx, hy, hz, hw
                         free = on & (limb == 0)
@@ -326,12 +324,13 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                                 ti.select(has, hw, qw)
                 d = dof_start[j]
                 if k == 1:
-                    qx, qy, qz, qw = lim.constrain_hinge(qx, qy, qz, qw, axes[j, 0], lo, hi, lim_p, d, on)
+                    qx, qy, qz, qw = lim.constrain_hinge(qx, qy, qz, qw, axes[j, 0], lim_p, lim_h, d)
                 elif k == 2:
-                    qx, qy, qz, qw = lim.constrain_universal(qx, qy, qz, qw, axes[j, 0], axes[j, 1], lo, hi, d)
+                    qx, qy, qz, qw = lim.constrain_universal(qx, qy, qz, qw, axes[j, 0], axes[j, 1], lim_p, lim_h, d)
                 else:
                     ux, uy, uz, uw = qx, qy, qz, qw
-                    qx, qy, qz, qw = lim.constrain_ball(qx, qy, qz, qw, lo, hi, lim_p, d, cone[j], first_bone, on)
+                    qx, qy, qz, qw = lim.constrain_ball(qx, qy, qz, qw, lo, hi, lim_p, lim_h, d, cone[j], first_bone,
+                                                        on)
                     if n_active >= 2 and p > 0 and kind[p] == 3 and child_start[p + 1] - child_start[p] == 1:
                         # kernels/fabrik_pass_up.py: the parent takes what the clamp removed
                         ex, ey, ez, ew = lm.qmul(ux, uy, uz, uw, -qx, -qy, -qz, qw)
@@ -340,7 +339,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             ax_, ay_, az_, aw_ = lx[s, p], ly[s, p], lz[s, p], lw[s, p]
                             bn = offset[j].normalized()
                             nx, ny, nz, nw = lim.constrain_ball(*lm.qmul(ax_, ay_, az_, aw_, ex, ey, ez, ew), lo, hi,
-                                                                lim_p, dof_start[p], cone[p], bn, moved)
+                                                                lim_p, lim_h, dof_start[p], cone[p], bn, moved)
                             nx, ny, nz, nw = ti.select(moved, nx, ax_), ti.select(moved, ny, ay_), \
                                 ti.select(moved, nz, az_), ti.select(moved, nw, aw_)
                             lx[s, p], ly[s, p], lz[s, p], lw[s, p] = nx, ny, nz, nw
@@ -352,8 +351,8 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             px, py, pz = lm.qrot(bqx, bqy, bqz, bqw, o.x, o.y, o.z)
                             fx[s, j], fy[s, j], fz[s, j] = bx + px, by + py, bz + pz
                             wx, wy, wz, ww = lm.qmul(-nx, -ny, -nz, nw, *lm.qmul(ax_, ay_, az_, aw_, ux, uy, uz, uw))
-                            wx, wy, wz, ww = lim.constrain_ball(wx, wy, wz, ww, lo, hi, lim_p, d, cone[j], first_bone,
-                                                                moved)
+                            wx, wy, wz, ww = lim.constrain_ball(wx, wy, wz, ww, lo, hi, lim_p, lim_h, d, cone[j],
+                                                                first_bone, moved)
                             qx, qy, qz, qw = ti.select(moved, wx, qx), ti.select(moved, wy, qy), \
                                 ti.select(moved, wz, qz), ti.select(moved, ww, qw)
                 lx[s, j], ly[s, j], lz[s, j], lw[s, j] = qx, qy, qz, qw
@@ -388,7 +387,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         axes: ndarray(dtype=vec3, ndim=2), lo: ndarray(ndim=1), hi: ndarray(ndim=1), lim_p: ndarray(ndim=2),
         cone: ndarray(ndim=1), dof_start: ndarray(dtype=ti.i32, ndim=1), child_start: ndarray(dtype=ti.i32, ndim=1),
         child_list: ndarray(dtype=ti.i32, ndim=1), eff_joint: ndarray(dtype=ti.i32, ndim=1),
-        eff_axis: ndarray(dtype=vec3, ndim=1), bone: ndarray(dtype=vec4, ndim=1), active: ndarray(dtype=ti.i32, ndim=1),
+        eff_axis: ndarray(dtype=vec3, ndim=1), lim_h: ndarray(ndim=2), bone: ndarray(dtype=vec4, ndim=1), active: ndarray(dtype=ti.i32, ndim=1),
         root_pos: ndarray(dtype=vec3, ndim=1), root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2),
         world_pos: ndarray(dtype=vec3, ndim=2), world_rot: ndarray(dtype=vec4, ndim=2),
         targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2), orient: ndarray(dtype=vec3, ndim=2),
@@ -508,7 +507,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                         wx[s, j] = ti.select(on, bx + b.w * ux, wx[s, j])
                         wy[s, j] = ti.select(on, by + b.w * uy, wy[s, j])
                         wz[s, j] = ti.select(on, bz + b.w * uz, wz[s, j])
-                    sweep(s, going, parent, offset, kind, axes, lo, hi, lim_p, cone, dof_start, child_start,
+                    sweep(s, going, parent, offset, kind, axes, lo, hi, lim_p, lim_h, cone, dof_start, child_start,
                           child_list, active, eff_joint, eff_axis, use_orient)
                     new_err = lane_error(s, eff_joint)
                     new_turn = V(0.0)

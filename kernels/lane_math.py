@@ -105,6 +105,29 @@ def wrap_angle(t):
 
 
 @ti.func
+def half_turn(x, y):
+    """(cos h, sin h) times a positive factor, h = atan2(y, x) / 2 in (-pi/2, pi/2] (h = 0 at (0, 0)), without
+    trigonometry: the half-angle identities (1 + cos, sin) = 2 cos h (cos h, sin h) and (sin, 1 - cos) =
+    2 sin h (cos h, sin h) with cos, sin = (x, y) / r, the first where x >= 0 and the second (signed) where it would
+    cancel. For |(x, y)| within 1e-18..1e18 (x * x + y * y in float32's normal range); the lane kernels pass
+    rotation entries, at most 1."""
+    r = ti.sqrt(x * x + y * y)
+    right = x >= 0.0
+    hc = ti.select(right, r + x, ti.abs(y))
+    hs = ti.select(right, y, ti.select(y < 0.0, x - r, r - x))
+    zero = r == 0.0
+    return ti.select(zero, 1.0, hc), ti.select(zero, 0.0, hs)
+
+
+@ti.func
+def unit_half_turn(x, y):
+    """half_turn normalised: (cos h, sin h)."""
+    hc, hs = half_turn(x, y)
+    inv = 1.0 / ti.sqrt(hc * hc + hs * hs)
+    return hc * inv, hs * inv
+
+
+@ti.func
 def pseudo_angle(x, y):
     """quat.pseudo_angle per lane: atan2's order on (-pi, pi] without trigonometry."""
     p = y / ti.max(ti.abs(x) + ti.abs(y), 1e-30)

@@ -79,7 +79,7 @@ def solve_limited(crowd, active: np.ndarray, max_iterations: int, tolerance: flo
     ra, L = crowd.rig_arrays, settings.limited_lanes()
     prepared(fabrik_limited_lanes.limited_solver(L, lane_plan.capacity(crowd.rig.n_joints),
                                                  lane_plan.capacity(crowd.rig.n_effectors)))(
-        *bundles.limited_rig(crowd), ra["bone"], active, *bundles.pose(crowd), *bundles.goal(crowd),
+        *bundles.limited_rig(crowd), ra["lim_h"], ra["bone"], active, *bundles.pose(crowd), *bundles.goal(crowd),
         int(not crowd.buffers.orient_zero), lane_plan.streams(crowd.n, L), max_iterations, tolerance,
         *bundles.result(crowd),
     )
