@@ -4,6 +4,7 @@ solvers/limits.py's limit_half_turns."""
 
 import numpy as np
 import pytest
+from limit_cases import LIMIT_CASES
 
 import crowd_ik as cik
 from crowd_ik.geometry import quat as rq
@@ -66,17 +67,7 @@ def _rotation_distance(a, b):
     return np.minimum(np.abs(a - b).max(axis=1), np.abs(a + b).max(axis=1))
 
 
-CASES = [
-    (1, [(0.0, 0.0, 1.0)], [0.0], [2.62]),  # a knee
-    (1, [(0.6, 0.0, 0.8)], [-1.0], [0.5]),
-    (1, [(1.0, 0.0, 0.0)], [-4.0], [4.0]),  # limits beyond +-pi never bite
-    (1, [(0.0, 1.0, 0.0)], [-3.1], [-2.0]),  # both limits on one side of pi
-    (2, [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0)], [-1.22, -0.52], [1.22, 0.52]),  # a wrist
-    (2, [(0.0, 1.0, 0.0), (1.0, 0.0, 0.0)], [-0.7, -2.8], [0.52, 2.9]),
-    (3, [], [-0.44, -0.7, -0.35], [0.44, 0.7, 0.35]),  # a pelvis
-    (3, [], [-2.97, -1.4, -0.35], [0.87, 1.4, 2.97]),  # a shoulder
-    (3, [], [-1e30, -0.3, -1e30], [1e30, 1e30, 0.2]),  # partly unlimited
-]
+CASES = LIMIT_CASES + [(1, [(0.0, 1.0, 0.0)], [-3.1], [-2.0])]  # and a hinge's limits on one side of pi
 
 
 @pytest.mark.parametrize("kind, axes, lo, hi", CASES)

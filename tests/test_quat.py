@@ -3,6 +3,7 @@ no-limit-bites test runs on pseudo-angles instead of trigonometry, and the pseud
 
 import numpy as np
 import pytest
+from limit_cases import LIMIT_CASES
 
 import crowd_ik as cik
 from crowd_ik.geometry import quat as rq
@@ -49,19 +50,7 @@ def _kernel_constrain(kind, axes, q, lo, hi, cone=0.0, bone=(0.0, 0.0, 0.0)):
     return out
 
 
-CASES = [
-    (1, [(0.0, 0.0, 1.0)], [0.0], [2.62]),  # a knee
-    (1, [(0.6, 0.0, 0.8)], [-1.0], [0.5]),
-    (1, [(1.0, 0.0, 0.0)], [-4.0], [4.0]),  # limits beyond +-pi never bite
-    (2, [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0)], [-1.22, -0.52], [1.22, 0.52]),  # a wrist
-    (2, [(0.0, 1.0, 0.0), (1.0, 0.0, 0.0)], [-0.7, -2.8], [0.52, 2.9]),
-    (3, [], [-0.44, -0.7, -0.35], [0.44, 0.7, 0.35]),  # a pelvis
-    (3, [], [-2.97, -1.4, -0.35], [0.87, 1.4, 2.97]),  # a shoulder
-    (3, [], [-1e30, -0.3, -1e30], [1e30, 1e30, 0.2]),  # partly unlimited
-]
-
-
-@pytest.mark.parametrize("kind, axes, lo, hi", CASES)
+@pytest.mark.parametrize("kind, axes, lo, hi", LIMIT_CASES)
 def test_constrain_rotation_matches_the_numpy_twin_inside_and_outside_the_limits(kind, axes, lo, hi):
     rng = np.random.default_rng(kind * 100 + int(10 * hi[0]) % 97)
     n = 4000
