@@ -346,24 +346,29 @@ class Crowd:
         return out
 
     def _report(self, req: SolveRequest) -> SolveReport:
+        """The report of the solve just run: errors, iterations and statuses (kernels/report_rows.py statuses,
+        the rule of Status: a character not within both tolerances is UNREACHABLE when a weighted target lies
+        beyond Rig.beyond_reach's bound, else STALLED or MAX_ITERATIONS), rotation errors where asked for."""
+        from crowd_ik.kernels import report_rows
+        from crowd_ik.kernels.serial_loops import CHEAP, serial_for
+
         b = self.buffers
-        error, iters = b.error.copy(), b.iterations.copy()
-        status = np.full(self.n, Status.CONVERGED, np.int8)
         if req.orientations is not None or req.rotations is not None:
             cols = np.flatnonzero(measured(req))
             turn = effector_rotation_error(self.rig, self._effector_rotations(cols), req, cols)
-            left = np.flatnonzero((error > req.tolerance) | (turn > req.rotation_tolerance))
         else:
             turn = np.zeros(self.n, np.float32)
-            left = np.flatnonzero(error > req.tolerance)
-        if left.size:  # the others converged (in a game step, nearly all of them)
-            if req.root_weight is not None:  # a free root: no target is out of reach by the fixed-root rule
-                far = np.zeros((left.size, self.rig.n_effectors), bool)
-            else:
-                far = self.rig.beyond_reach(b.targets[left], self._base[left])
-            status[left] = np.where(np.any(far & (b.weights[left] > 0), axis=1), Status.UNREACHABLE,
-                                    np.where(b.stalled[left] != 0, Status.STALLED, Status.MAX_ITERATIONS))
-        return SolveReport(error=error, iterations=iters, status=status, method=req.method, rotation_error=turn)
+        kept = self.__dict__.get("_report_status")
+        if kept is None:  # buffers the status launch keeps bound
+            kept = self._report_status = (np.zeros(self.n, np.float32), np.zeros(self.n, np.int8),
+                                          np.ascontiguousarray(self.rig.reach_bound_sq, np.float64))
+        turn_buf, status, bound_sq = kept
+        np.copyto(turn_buf, turn, casting="same_kind")
+        prepared(report_rows.statuses)(b.error, turn_buf, req.tolerance, req.rotation_tolerance, b.targets, b.weights,
+                                       self._base, bound_sq, b.stalled, int(req.root_weight is not None), status,
+                                       serial_for(self.n, CHEAP))
+        return SolveReport(error=b.error.copy(), iterations=b.iterations.copy(), status=status.copy(),
+                           method=req.method, rotation_error=turn)
 
 
 # one adapter per method (crowd_ik/solvers/); FABRIK's solves of more than a window of iterations on a limited rig

@@ -331,8 +331,9 @@ class Rig:
 
     def beyond_reach(self, targets: np.ndarray, base: np.ndarray) -> np.ndarray:
         """(N, E) bool: each target (N, E, 3) farther from its character's root joint base (N, 3) than its chain
-        reaches (Crowd's UNREACHABLE rule, where the target's weight is positive)."""
-        d = targets - base[:, None, :]
+        reaches (Crowd's UNREACHABLE rule, where the target's weight is positive): the squared length in float64 of
+        the difference in the targets' precision, as kernels/report_rows.py statuses computes it."""
+        d = (targets - base[:, None, :]).astype(np.float64)
         return np.einsum("nek,nek->ne", d, d) > self.reach_bound_sq
 
     def root_joints(self, roots: np.ndarray, yaw: np.ndarray) -> np.ndarray:
