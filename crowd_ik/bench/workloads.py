@@ -247,6 +247,9 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     heading = rng.uniform(0, 2 * np.pi, pool_size)
     velocities = (25.0 * np.stack([np.cos(heading), np.zeros(pool_size), np.sin(heading)], axis=1)).astype(np.float32)
 
+    # the bullets' state exported to host arrays each step, whose free slots the next spawn takes (as
+    # game.bullets.Bullets does: the pool need not read its flags back)
+    exported = (np.zeros((pool_size, 3), np.float32), np.zeros((pool_size, 3), np.float32), np.zeros(pool_size, np.int32))
     offsets = _smooth_offsets(n, E, SEED + 2)
     feet = np.array([name.startswith("foot") for name in rig.effector_names])
     solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, shares, motion, hits = [], [], [], [], [], [], [], [], [], [], 0
@@ -258,10 +261,10 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         limbs.begin_step()
         limbs.update()
         t2 = time.perf_counter()
-        pool.spawn(origins, velocities)
+        pool.spawn(origins, velocities, free=np.flatnonzero(exported[2] == 0))
         step_hits = pool.advance(1 / 60.0, 9.81, 0.0, 3.0, *limbs.current, limbs.radius, limbs.owner, alive, n,
                                  prev_a=limbs.previous[0], prev_b=limbs.previous[1], owner_boxes=limbs.owner_box,
-                                 owner_stride=B)
+                                 owner_stride=B, export_to=exported)
         t3 = time.perf_counter()
         # how far the limbs moved this frame: per character its largest joint step, metres
         step = np.linalg.norm(limbs.joints - limbs.joints_prev, axis=2).max(axis=1)
@@ -274,7 +277,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
         iters.append(float(rep.iterations.mean()))
         conv.append(float(np.mean(rep.status == Status.CONVERGED)))
         err.append(float(rep.error.mean()))
-        live.append(pool.count_alive())
+        live.append(int(np.count_nonzero(exported[2])))
         hits += len(step_hits.chars)
         subs.append(pool.last_substeps)
         shares.append(pool.last_substepped / max(1, np.count_nonzero(pool.bullet_substeps)))  # of the bullets flown

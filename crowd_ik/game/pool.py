@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from crowd_ik.kernels.serial_loops import CELL, CHEAP, serial_for
+from crowd_ik.kernels.serial_loops import BOX, CELL, CHEAP, LIGHT, serial_for
 from crowd_ik.prepared import prepared
 from crowd_ik.runtime import ensure_init
 
@@ -460,9 +460,13 @@ class BulletPool:
                    self.bullet_point, self.bullet_substeps)
         if step_args is not None:  # integrate + collide, apply (+ export): one launch
             out = (self.pos, self.vel, self.alive) if export_to is None else export_to
+            # its work: each bullet's step, and each limb-grid entry (a character's capsules, or one capsule) tested
+            # against the bullets in its cell (a full pool among 10,000 characters: ~11,000 entries, 2.2 ms on one
+            # thread, 1.7 on two)
+            work = self._used * LIGHT + int(grid.total[0]) * (BOX if stride else CHEAP)
             prepared(kp.advance_bullets)(self.pos, self.vel, self.age, self.alive, self.prev, *step_args, self.far,
                                          *hits_in, self.hit_bullet, int(export_to is not None), *out, self._used,
-                                         serial_for(self._used))
+                                         serial_for(work, 1.0))
         else:
             kp.collide_bullets(self.prev, self.pos, self.alive, *hits_in)
             kp.apply_hits(self.alive, self.bullet_char, self.bullet_key, self.hit_key, self.hit_bullet)
