@@ -24,7 +24,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from crowd_ik.kernels.cfg_passes import cfg_passes
+from crowd_ik.kernels.compile_settings import compile_settings
 
 CONTEXTS = 8  # launch contexts kept per kernel (the game alternates a few array sets: two limb poses, exports)
 
@@ -124,8 +124,8 @@ class Prepared:
         instance, _ = primal.mapper.lookup(args)
         t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
         prog = impl.get_runtime().prog
-        with cfg_passes(getattr(self.kernel, "cfg_optimization", prog.config().cfg_optimization)):
-            # under the setting of the ordinary call that compiled it (kernels/cfg_passes.py)
+        with compile_settings(**getattr(self.kernel, "compile_settings", {})):
+            # under the settings of the ordinary call that compiled it (kernels/compile_settings.py)
             data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
         self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
         while len(self._contexts) > CONTEXTS:

@@ -143,9 +143,10 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         offline_cache=True,
         log_level=ti.WARN,
         # Taichi's control-flow-graph passes: most of a big kernel's cold compile, and LLVM does their work after
-        # them; off, except for the kernels kernels/cfg_passes.py marks (the raster's). CROWD_IK_TAICHI_CFG_OPT=1
+        # them; off, except for the kernels kernels/compile_settings.py marks (the raster's). CROWD_IK_TAICHI_CFG_OPT=1
         # turns them on everywhere (to compare)
         cfg_optimization=os.environ.get("CROWD_IK_TAICHI_CFG_OPT", "0") == "1",
+        opt_level=int(os.environ.get("CROWD_IK_TAICHI_OPT_LEVEL", "1")),
         # CUDA's fast math swaps sin, cos, sqrt and division for approximations (about 1e-6 off each): forward
         # kinematics then drifted up to 9e-6 m from the twin and a 0.002 rad rotation error read as 0 on an H200.
         # The CPU keeps Taichi's default (its compiled code, and so the golden frames, stay as they are)

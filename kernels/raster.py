@@ -73,7 +73,7 @@ bit whatever the thread count, since which rows go through packets depends only 
 
 import taichi as ti
 
-from crowd_ik.kernels.cfg_passes import with_cfg_passes
+from crowd_ik.kernels.compile_settings import with_cfg_passes
 from crowd_ik.kernels.raster_geometry import (  # noqa: F401  (EMPTY_ID, GROUND: the renderer's too)
     _CORNER_X, _CORNER_Z, BIG, EMPTY_ID, GROUND, SHADOW_MAX_HEIGHT, SHADOW_SCALE, TILE, cam_vec, dir_origin,
     effective_radius, empty_key, mark_tiles, pixel_range, primitive_part, primitive_parts, row3, shadow_soft,

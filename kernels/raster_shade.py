@@ -5,7 +5,7 @@ with its bilinearly sampled soft shadows and fog."""
 
 import taichi as ti
 
-from crowd_ik.kernels.cfg_passes import with_cfg_passes
+from crowd_ik.kernels.compile_settings import with_cfg_passes
 from crowd_ik.kernels.raster_geometry import (
     AMBIENT, AMBIENT_SKY, AO_HEIGHT, AO_MIN, DIFFUSE, EMPTY_ID, FOG_DISTANCE, GRID_DARK, GROUND, LIGHT_X,
     LIGHT_Y, LIGHT_Z, RIM, RIM_POWER, SHADOW_SCALE, SHININESS, SKY_HORIZON, SKY_ZENITH, SPAN, SPECULAR, TILE, cam_vec,
