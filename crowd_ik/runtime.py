@@ -5,8 +5,7 @@ backend, thread count, precision or cache folder. It is idempotent for the same 
 to switch arch once Taichi is running (kernels already compiled for one backend cannot move). Before
 Taichi starts it lightens Taichi's frontend, which runs at every kernel's first launch in a process even
 with the offline cache warm: a short position message per AST node (_short_debug_info) and each function's
-source read once (_remembered_sources); and it has a comparison made without the wrapper that a chained comparison
-needs (_single_comparisons), which Taichi's compiler then took quadratic time to remove.
+source read once (_remembered_sources).
 """
 
 from __future__ import annotations
@@ -74,40 +73,6 @@ def _remembered_sources() -> None:
 
     getsourcelines._crowd_ik_remembered = True
     ki.getsourcelines = getsourcelines
-
-
-def _single_comparisons() -> None:
-    """Have Taichi's frontend build a single comparison `a < b` as the comparison itself.
-
-    Taichi 1.7.4 builds every comparison as a chain would need it, logical_and(True, a < b) cast to u1, though
-    a < b already is u1. Its compiler removes both again, but each removal of the cast (constant folding after
-    offloading) replaces the statement's uses by a walk over the whole kernel, and a comparison of L-lane vectors
-    is L of them: quadratic in the kernel's size. The joint-limited FABRIK lanes compiled in 12.9 s with them and
-    10.8 s without at 8 lanes, 33 and 21 s at 16 (2-core AMD EPYC). Chains (a < b < c) and static `in` keep
-    Taichi's own path; the kernels' IR after simplification, and so their results, are the same (the golden
-    frames are unchanged)."""
-    import ast
-
-    from taichi.lang.ast import ast_transformer as at
-
-    transformer = getattr(at, "ASTTransformer", None)
-    original = getattr(transformer, "build_Compare", None)
-    if original is None or getattr(original, "_crowd_ik_single", False):
-        return
-    ops = {ast.Eq: lambda l, r: l == r, ast.NotEq: lambda l, r: l != r, ast.Lt: lambda l, r: l < r,
-           ast.LtE: lambda l, r: l <= r, ast.Gt: lambda l, r: l > r, ast.GtE: lambda l, r: l >= r}
-
-    def build_Compare(ctx, node):  # noqa: N802  (Taichi's name)
-        op = ops.get(type(node.ops[0])) if len(node.ops) == 1 else None
-        if op is None:
-            return original(ctx, node)
-        at.build_stmt(ctx, node.left)
-        at.build_stmts(ctx, node.comparators)
-        node.ptr = op(node.left.ptr, node.comparators[0].ptr)
-        return node.ptr
-
-    build_Compare._crowd_ik_single = True
-    transformer.build_Compare = staticmethod(build_Compare)
 
 
 def _cuda_available(ti) -> bool:
@@ -193,7 +158,6 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         kwargs["cpu_max_num_threads"] = threads
     _short_debug_info()
     _remembered_sources()
-    _single_comparisons()
     # Taichi's banner goes to stdout; machine-readable output is written to files instead.
     ti.init(**kwargs)
     resolved = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"

@@ -84,32 +84,3 @@ def test_taichi_reads_a_function_source_once_and_hands_out_copies():
 
 def _a_function(x):
     return x + 1
-
-
-def test_single_comparisons_are_built_plain_and_every_comparison_still_holds():
-    # runtime._single_comparisons: `a < b` without logical_and(True, .) and a cast (quadratic to remove); chains and
-    # comparisons of vectors, scalars, integers and Python values give what NumPy gives
-    import numpy as np
-    import taichi as ti
-    from taichi.lang.ast import ast_transformer
-
-    crowd_ik.init(arch="cpu")
-    assert getattr(ast_transformer.ASTTransformer.build_Compare, "_crowd_ik_single", False)
-    V = ti.types.vector(4, ti.f32)
-
-    @ti.kernel
-    def compare(a: V, b: V, i: ti.i32, out: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-        m = (a > b) & (a != 0.0)
-        for k in ti.static(range(4)):
-            out[k] = ti.select(m[k], 1, 0) + 2 * ti.select(a[k] <= b[k], 1, 0)
-        out[4] = 1 if 0 < i < 5 else 0  # a chain: Taichi's own path
-        out[5] = 1 if i == 3 else 0
-        out[6] = 1 if ti.static(2 >= 1) else 0  # Python values at compile time
-        out[7] = (i >= 3) + (i < 3)  # u1 results added as integers
-
-    a, b = np.array([1.0, 0.0, -2.0, 3.0], np.float32), np.array([0.5, -1.0, -2.0, 4.0], np.float32)
-    for i in (0, 3, 7):
-        out = np.zeros(8, np.int32)
-        compare(a, b, i, out)
-        want = [int((x > y) and x != 0) + 2 * int(x <= y) for x, y in zip(a, b)]
-        assert out.tolist() == want + [int(0 < i < 5), int(i == 3), 1, 1]
