@@ -6,6 +6,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from crowd_ik.bench.options import (
@@ -232,6 +234,7 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
 
     from crowd_ik.game.body import Body
     from crowd_ik.game.limbs import Limbs
+    from crowd_ik.game.solving import StepSolve
 
     B = J - 1  # bones: bone k joins joint parent[k + 1] to joint k + 1
     # the World's limbs: capsules, host joints and per-character boxes in one launch, the capsules left in
@@ -251,12 +254,15 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
     # game.bullets.Bullets does: the pool need not read its flags back)
     exported = (np.zeros((pool_size, 3), np.float32), np.zeros((pool_size, 3), np.float32), np.zeros(pool_size, np.int32))
     offsets = _smooth_offsets(n, E, SEED + 2)
+    # the game's solve (game/solving.py): the request checked once, then refilled in place each frame
+    step_solve = StepSolve(crowd, SimpleNamespace(method=FABRIK, iterations=4, tolerance=wl.tolerance), None)
+    weights = np.ones((n, E), np.float32)
     feet = np.array([name.startswith("foot") for name in rig.effector_names])
     solve_ms, caps_ms, bullet_ms, iters, conv, err, live, subs, shares, motion, hits = [], [], [], [], [], [], [], [], [], [], 0
     for f in range(GAME_WARMUP_FRAMES + frames):
         targets = wl.targets + np.where(feet[None, :, None], 0.0, offsets((f + 1) / 60.0))  # feet planted
         t0 = time.perf_counter()
-        rep = crowd.solve(targets, method=FABRIK, max_iterations=4, tolerance=wl.tolerance)
+        rep = step_solve(targets, weights)
         t1 = time.perf_counter()
         limbs.begin_step()
         limbs.update()
