@@ -143,9 +143,11 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         offline_cache=True,
         log_level=ti.WARN,
         # Taichi's control-flow-graph passes: most of a big kernel's cold compile, and LLVM does their work after
-        # them; off, except for the kernels kernels/compile_settings.py marks (the raster's). CROWD_IK_TAICHI_CFG_OPT=1
-        # turns them on everywhere (to compare)
+        # them; off, except for the kernels kernels/compile_settings.py marks (the raster's).
+        # CROWD_IK_TAICHI_CFG_OPT=1 turns them on everywhere (to compare)
         cfg_optimization=os.environ.get("CROWD_IK_TAICHI_CFG_OPT", "0") == "1",
+        # Taichi's own simplification level, 1; kernels/compile_settings.py compiles the joint-limited FABRIK lanes
+        # at 0 (no whole-kernel CSE). CROWD_IK_TAICHI_OPT_LEVEL sets the default (to compare)
         opt_level=int(os.environ.get("CROWD_IK_TAICHI_OPT_LEVEL", "1")),
         # CUDA's fast math swaps sin, cos, sqrt and division for approximations (about 1e-6 off each): forward
         # kinematics then drifted up to 9e-6 m from the twin and a 0.002 rad rotation error read as 0 on an H200.

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-
 from types import SimpleNamespace
 
 import numpy as np
@@ -252,7 +251,8 @@ def game_frames(n: int, frames: int, pool_size: int = GAME_POOL) -> dict:
 
     # the bullets' state exported to host arrays each step, whose free slots the next spawn takes (as
     # game.bullets.Bullets does: the pool need not read its flags back)
-    exported = (np.zeros((pool_size, 3), np.float32), np.zeros((pool_size, 3), np.float32), np.zeros(pool_size, np.int32))
+    exported = (np.zeros((pool_size, 3), np.float32), np.zeros((pool_size, 3), np.float32),
+                np.zeros(pool_size, np.int32))
     offsets = _smooth_offsets(n, E, SEED + 2)
     # the game's solve (game/solving.py): the request checked once, then refilled in place each frame
     step_solve = StepSolve(crowd, SimpleNamespace(method=FABRIK, iterations=4, tolerance=wl.tolerance), None)
