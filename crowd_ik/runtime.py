@@ -75,6 +75,14 @@ def _remembered_sources() -> None:
     ki.getsourcelines = getsourcelines
 
 
+def _opt_level() -> int:
+    """Taichi's opt_level for the process: CROWD_IK_TAICHI_OPT_LEVEL (0 or 1, to compare), else 1."""
+    value = os.environ.get("CROWD_IK_TAICHI_OPT_LEVEL", "1")
+    if value not in ("0", "1"):
+        raise ValueError(f"CROWD_IK_TAICHI_OPT_LEVEL: expected 0 or 1 (got {value!r})")
+    return int(value)
+
+
 def _cuda_available(ti) -> bool:
     """True when Taichi's CUDA backend can start on this machine (no display probe)."""
     try:
@@ -148,7 +156,7 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         cfg_optimization=os.environ.get("CROWD_IK_TAICHI_CFG_OPT", "0") == "1",
         # Taichi's own simplification level, 1; kernels/compile_settings.py compiles the joint-limited FABRIK lanes
         # at 0 (no whole-kernel CSE). CROWD_IK_TAICHI_OPT_LEVEL sets the default (to compare)
-        opt_level=int(os.environ.get("CROWD_IK_TAICHI_OPT_LEVEL", "1")),
+        opt_level=_opt_level(),
         # CUDA's fast math swaps sin, cos, sqrt and division for approximations (about 1e-6 off each): forward
         # kinematics then drifted up to 9e-6 m from the twin and a 0.002 rad rotation error read as 0 on an H200.
         # The CPU keeps Taichi's default (its compiled code, and so the golden frames, stay as they are)

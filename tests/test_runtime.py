@@ -84,3 +84,11 @@ def test_taichi_reads_a_function_source_once_and_hands_out_copies():
 
 def _a_function(x):
     return x + 1
+
+
+def test_a_bad_opt_level_variable_is_refused_by_name(monkeypatch):
+    monkeypatch.setenv("CROWD_IK_TAICHI_OPT_LEVEL", "fast")
+    with pytest.raises(ValueError, match="CROWD_IK_TAICHI_OPT_LEVEL: expected 0 or 1"):
+        runtime._opt_level()
+    monkeypatch.setenv("CROWD_IK_TAICHI_OPT_LEVEL", "0")
+    assert runtime._opt_level() == 0
