@@ -211,7 +211,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                     if lm.any_lane(sv):
                         ramp = ti.min(1.0, (bend - TWIST_MIN_BEND) / (TWIST_FULL_BEND - TWIST_MIN_BEND))
                         turn = ramp * lt.best_angle_about(ux, uy, uz, nx_, ny_, nz_, px, py, pz)
-                        sv = sv & (ti.abs(turn) > 1e-5)  # warm-started frames mostly need none
+                        sv = sv & (ti.abs(turn) > 1e-5)  # a negligible swivel keeps m
                         if lm.any_lane(sv):
                             ex, ey, ez, ew = lt.axis_angle(ux, uy, uz, turn)
                             ex, ey, ez, ew = lm.qnormalize(*lm.qmul(ex, ey, ez, ew, mx, my, mz, mw))
