@@ -35,6 +35,11 @@ def _kernel(error, turn, tol, rtol, targets, weights, base, bound_sq, stalled, f
     return out
 
 
+def test_the_kernels_codes_are_crowd_status():
+    assert (report_rows.CONVERGED, report_rows.UNREACHABLE, report_rows.STALLED, report_rows.MAX_ITERATIONS) == (
+        Status.CONVERGED, Status.UNREACHABLE, Status.STALLED, Status.MAX_ITERATIONS)
+
+
 @pytest.mark.parametrize("free_root", [False, True])
 def test_statuses_match_the_twin_serial_and_parallel(free_root):
     case = _case()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-CONVERGED, UNREACHABLE, STALLED, MAX_ITERATIONS = 0, 1, 2, 3  # crowd_ik.crowd.Status
+from crowd_ik.crowd import Status
 
 
 def statuses(error, turn, tolerance: float, rotation_tolerance: float, targets, weights, base, bound_sq, stalled,
@@ -16,5 +16,5 @@ def statuses(error, turn, tolerance: float, rotation_tolerance: float, targets, 
     left = (error > np.float32(tolerance)) | (turn > np.float32(rotation_tolerance))
     d = (np.asarray(targets, np.float32) - np.asarray(base, np.float32)[:, None, :]).astype(np.float64)
     far = np.any((np.einsum("nek,nek->ne", d, d) > bound_sq) & (np.asarray(weights) > 0), axis=1) & (not free_root)
-    out = np.where(far, UNREACHABLE, np.where(np.asarray(stalled) != 0, STALLED, MAX_ITERATIONS))
-    return np.where(left, out, CONVERGED).astype(np.int8)
+    out = np.where(far, Status.UNREACHABLE, np.where(np.asarray(stalled) != 0, Status.STALLED, Status.MAX_ITERATIONS))
+    return np.where(left, out, Status.CONVERGED).astype(np.int8)
