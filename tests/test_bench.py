@@ -241,6 +241,10 @@ def test_game_scene_times_the_world_as_played():
     names = [t["name"] for t in report.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(p95=1.0), fits=True,
                                                                  scene=sc)])]
     assert any(n.startswith("game step as played, duel scene") for n in names)
+    # the median frame (issue 13's target) and the p95 (the frame budget) each get a row, judged on their own value
+    rows = report.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(median=10.0, p95=20.0), fits=False)])
+    met = {t["name"].rsplit(", ", 1)[1]: t["met"] for t in rows}
+    assert met == {"median ms": True, "p95 ms": False}
 
 
 def test_plot_is_a_valid_png(tiny_run):

@@ -143,8 +143,13 @@ def evaluate_targets(records: list[dict], games: list[dict]) -> list[dict]:
                     out.append(dict(name=f"chain16 {r['solver']} full solves/s of {r['n']:,} characters", arch=arch,
                                     n=r["n"], goal=">= 30", unit="per_s", value=full, met=bool(full >= 30)))
     for g in games:
-        name = "game frame, every character's targets moving (warm FABRIK <= 4 it + 4096 bullets), p95 ms"
-        out.append(dict(name=name, arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms",
+        name = "game frame, every character's targets moving (warm FABRIK <= 4 it + 4096 bullets)"
+        # issue 13's target is the median frame; the p95 is the stricter frame budget (`fits`)
+        median = g["frame_ms"].get("median")
+        if median is not None:
+            out.append(dict(name=f"{name}, median ms", arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms",
+                            unit="ms", value=median, met=bool(median <= FRAME_MS)))
+        out.append(dict(name=f"{name}, p95 ms", arch=g["arch"], n=g["n"], goal=f"<= {FRAME_MS:.1f} ms", unit="ms",
                         value=g["frame_ms"]["p95"], met=g["fits"]))
         sc = g.get("scene")
         if sc:
