@@ -12,7 +12,7 @@ from crowd_ik.solvers.settings import TWIST_FULL_BEND, TWIST_MIN_BEND
 
 
 def joint_steps(L: int, lx, ly, lz, lw, wx, wy, wz, aw):
-    """(last_active, to_base, swing_round, twist_for_hinge_child, two_bone_swing) for L lanes over the stream
+    """(to_base, swing_round, twist_for_hinge_child, two_bone_swing) for L lanes over the stream
     fields l* (local rotations) and w*, aw (proposals and their weights) of kernels/fabrik_limited_lanes.py."""
     V = ti.types.vector(L, ti.f32)
 
@@ -194,4 +194,4 @@ def joint_steps(L: int, lx, ly, lz, lw, wx, wy, wz, aw):
                         wz[s, g] = ti.select(ok, jz + vz, wz[s, g])
         return outx, outy, outz, outw, ok
 
-    return last_active, to_base, swing_round, twist_for_hinge_child, two_bone_swing
+    return to_base, swing_round, twist_for_hinge_child, two_bone_swing

@@ -34,12 +34,8 @@ from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.kernels.quat import qrot, yaw_quat
 
-from crowd_ik.solvers.settings import (
-    FABRIK_FLAT as FLAT,
-)
-from crowd_ik.solvers.settings import (
-    FABRIK_STALL_AFTER as STALL_AFTER,
-)
+from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT
+from crowd_ik.solvers.settings import FABRIK_STALL_AFTER as STALL_AFTER
 from crowd_ik.solvers.settings import SWING_ROUNDS
 
 ndarray = ti.types.ndarray
@@ -59,8 +55,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
     tx, ty, tz, tw, dx, dy, dz = lane_rows(L, E_, 7)
     ox, oy, oz, yx, yy, yz, yw = lane_rows(L, (MAX_STREAMS,), 7)
 
-    last_active, to_base, swing_round, twist_for_hinge_child, two_bone_swing = joint_steps(
-        L, lx, ly, lz, lw, wx, wy, wz, aw)
+    to_base, swing_round, twist_for_hinge_child, two_bone_swing = joint_steps(L, lx, ly, lz, lw, wx, wy, wz, aw)
 
     @ti.func
     def sweep(s, on, parent: ti.template(), offset: ti.template(), kind: ti.template(), axes: ti.template(),
