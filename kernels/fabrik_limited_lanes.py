@@ -165,8 +165,12 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             bqx, bqy, bqz, bqw = ti.select(moved, cx, bqx), ti.select(moved, cy, bqy), \
                                 ti.select(moved, cz, bqz), ti.select(moved, cw, bqw)
                             rx[s, p], ry[s, p], rz[s, p], rw[s, p] = bqx, bqy, bqz, bqw
+                            # the joint's new place in the lanes that moved only: recomputed in the others, fast
+                            # math may round it differently, and a lane would depend on its mates
                             px, py, pz = lm.qrot(bqx, bqy, bqz, bqw, o.x, o.y, o.z)
-                            fx[s, j], fy[s, j], fz[s, j] = bx + px, by + py, bz + pz
+                            fx[s, j] = ti.select(moved, bx + px, jx)
+                            fy[s, j] = ti.select(moved, by + py, jy)
+                            fz[s, j] = ti.select(moved, bz + pz, jz)
                             wx, wy, wz, ww = lm.qmul(-nx, -ny, -nz, nw, *lm.qmul(ax_, ay_, az_, aw_, ux, uy, uz, uw))
                             wx, wy, wz, ww = lim.constrain_ball(wx, wy, wz, ww, lo, hi, lim_p, lim_h, d, cone[j],
                                                                 first_bone, moved)
