@@ -203,7 +203,15 @@ def format_game(g: dict) -> str:
             f"\n  ({g['hits']} hits, {g['bullets_alive']:.0f} bullets alive, "
             f"{100 * g.get('substepped_share', 0):.2f}% of them sub-stepped, up to {g['mean_substeps']:.1f} sub-steps "
             f"a frame on average;\n  joints moved {1e3 * g['limb_step_m']:.1f} mm per frame (median character), "
-            f"{1e3 * g['limb_step_max_m']:.0f} mm at most)" + format_scene(g.get("scene")))
+            f"{1e3 * g['limb_step_max_m']:.0f} mm at most)" + format_runs(g.get("runs")) + format_scene(g.get("scene")))
+
+
+def format_runs(runs: list[dict] | None) -> str:
+    """Each run's frame median / p95 (bench.workloads.best_game_frames), when there was more than one."""
+    if not runs or len(runs) < 2:
+        return ""
+    each = ", ".join(f"{r['frame_ms']['median']:.2f} / {r['frame_ms']['p95']:.2f}" for r in runs)
+    return f"\n  {len(runs)} runs, the one with the lowest median kept: frame median / p95 {each} ms"
 
 
 def format_scene(sc: dict | None) -> str:
