@@ -1,10 +1,16 @@
-"""CCD for a Crowd: cyclic coordinate descent (kernels/ccd.py), one sweep per iteration, deepest joint first."""
+"""CCD for a Crowd: cyclic coordinate descent (kernels/ccd.py), one sweep per iteration, deepest joint first.
+
+A constraint-free rig with position targets only, whose characters all weight the same effectors (or none), runs
+kernels/ccd_lanes.py on the CPU (characters as SIMD lanes); anything else, and CUDA (one lane), the one-character
+kernel."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from crowd_ik.solvers import bundles
+from crowd_ik.prepared import prepared
+from crowd_ik.solvers import bundles, settings
+from crowd_ik.solvers.lane_pattern import active_joints, weighted_effectors
 
 
 def moving_joints(rig) -> np.ndarray:
@@ -61,6 +67,10 @@ def solve(crowd, req) -> None:
     from crowd_ik.kernels import ccd
 
     b = crowd.buffers
+    weighted = lane_weights(crowd, req)
+    if weighted is not None:
+        _solve_lanes(crowd, req, below, reach, weighted)
+        return
     # compile time: the plain sweep stays as it was; 1 axis targets, 2 full rotation targets
     goals = int(not b.orient_zero) | (6 if req.rotations is not None else 0)  # 4: limb_weights
     move = crowd.scratch("ccd_eff_move", ti.i32, (rig.n_effectors, 2))
@@ -76,4 +86,33 @@ def solve(crowd, req) -> None:
         crowd.scratch("ccd_eff_pos", ti.math.vec3, (crowd.n, rig.n_effectors)),
         limb, crowd.scratch("ccd_aim_w", ti.f32, (crowd.n, rig.n_effectors)),
         req.max_iterations, req.tolerance, req.rotation_tolerance, goals, *bundles.result(crowd),
+    )
+
+
+def lane_weights(crowd, req) -> tuple | None:
+    """The effectors switched on when kernels/ccd_lanes.py reproduces this request (CPU lanes, a constraint-free rig,
+    no orientation or rotation targets, the same effectors weighted by every character that weights any), else None."""
+    if settings.lanes() <= 1 or not crowd.rig.constraint_free or req.rotations is not None:
+        return None
+    if not crowd.buffers.orient_zero:
+        return None
+    return weighted_effectors(crowd.buffers.weights)
+
+
+def _solve_lanes(crowd, req, below, reach, weighted: tuple) -> None:
+    from crowd_ik.kernels import ccd_lanes, lane_plan
+
+    ra, L, rig = crowd.rig_arrays, settings.lanes(), crowd.rig
+    kept = crowd.__dict__.setdefault("_ccd_lane_inputs", {})
+    if weighted not in kept:  # the pattern's joints and effectors as ndarrays, uploaded once
+        active, on = crowd.scratch(f"ccd_active_{len(kept)}", crowd.ti.i32, (rig.n_joints,)), \
+            crowd.scratch(f"ccd_on_{len(kept)}", crowd.ti.i32, (rig.n_effectors,))
+        active.from_numpy(active_joints(crowd, weighted))
+        on.from_numpy(np.asarray(weighted, np.int32))
+        kept[weighted] = (active, on)
+    active, on = kept[weighted]
+    prepared(ccd_lanes.free_ccd_solver(L, lane_plan.capacity(rig.n_joints), lane_plan.capacity(rig.n_effectors)))(
+        ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"], below, reach,
+        active, on, *bundles.pose(crowd), *bundles.goal(crowd, orientations=False),
+        lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, *bundles.result(crowd),
     )

@@ -17,6 +17,7 @@ from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.ccd import moving_joints
 from crowd_ik.solvers.fabrik_free import solve_free
+from crowd_ik.solvers.lane_pattern import active_joints, weighted_effectors
 
 
 def solve(crowd, req) -> None:
@@ -42,34 +43,10 @@ def lane_active(crowd, req):
     every character that weights any (a game's and the bench's requests; solvers/fabrik_restart.py's windows,
     which give the characters that are done zero weights: those do no iterations in either kernel); else None.
     Poles are fine: solvers/poles.py swivels the limbs after whichever kernel solved."""
-    b = crowd.buffers
     if settings.limited_lanes() <= 1 or req.rotations is not None:
         return None
-    on = b.weights > 0.0
-    if on.all():  # the common case (every effector weighted), without the row comparison below
-        return _active_joints(crowd, (True,) * on.shape[1])
-    rows = on.any(axis=1)
-    if not rows.any():
-        return None
-    first = on[int(np.argmax(rows))]
-    if not np.array_equal(on[rows], np.broadcast_to(first, (int(rows.sum()), on.shape[1]))):
-        return None
-    return _active_joints(crowd, tuple(bool(x) for x in first))
-
-
-def _active_joints(crowd, weighted: tuple) -> np.ndarray:
-    """1 for each joint at or above a positively weighted effector (kernels/fabrik.py's acc_w > 0), cached."""
-    cache = crowd.__dict__.setdefault("_fabrik_lane_active", {})
-    if weighted not in cache:
-        parent, eff_joint = crowd.rig.arrays["parent"], crowd.rig.arrays["eff_joint"]
-        active = np.zeros(len(parent), np.int32)
-        for e, on in enumerate(weighted):
-            j = int(eff_joint[e]) if on else -1
-            while j >= 0 and not active[j]:
-                active[j] = 1
-                j = int(parent[j])
-        cache[weighted] = active
-    return cache[weighted]
+    weighted = weighted_effectors(crowd.buffers.weights)
+    return None if weighted is None else active_joints(crowd, weighted)
 
 
 def solve_limited(crowd, active: np.ndarray, max_iterations: int, tolerance: float) -> None:
