@@ -118,30 +118,97 @@ def test_a_character_does_not_depend_on_its_lane_mates(name):
         np.testing.assert_array_equal(one.joint_positions()[0], pos[i])
 
 
+def _game(n, orient):
+    """n game humanoids in their cold-solved poses, the warm frames' moved targets, and flat-sole axis targets (or
+    none)."""
+    from crowd_ik.bench import workloads as w
+
+    wl = w.game_workload(n)
+    rig = wl.rig
+    feet = np.array([name.startswith("foot") for name in rig.effector_names])
+    offsets = w._smooth_offsets(n, rig.n_effectors, 5)
+    frames = [(wl.targets + np.where(feet[None, :, None], 0.0, offsets(t))).astype(np.float32) for t in (0.2, 0.6)]
+    axes = None
+    if orient:
+        axes = np.zeros((n, rig.n_effectors, 3), np.float32)
+        axes[:, feet] = (0.0, -1.0, 0.0)
+    return wl, frames, axes
+
+
+@pytest.mark.parametrize("orient", [False, True], ids=["positions", "flat_soles"])
+def test_limited_lanes_match_the_one_character_kernel_on_the_humanoid(monkeypatch, orient):
+    """The game's warm 10-sweep solves of humanoids (joint limits, hinges, universal joints, the reach step), with
+    and without orientation targets: the same statuses and iteration counts, poses within 1e-4 m for >= 99 %."""
+    if settings.limited_lanes() <= 1:
+        pytest.skip("limited lanes off")
+    n = 4 * settings.limited_lanes() + 3
+    wl, frames, axes = _game(n, orient)
+    out = []
+    for lanes in (True, False):
+        monkeypatch.setattr(adapter, "lane_weights", adapter.lane_weights if lanes else (lambda crowd, req: None))
+        crowd = cik.Crowd(wl.rig, n, spacing=2.0)
+        crowd.set_angles(wl.angles)
+        crowd.solve(wl.targets, method="fabrik", max_iterations=100, tolerance=wl.tolerance)
+        start = crowd.rotations()
+        got = []
+        for targets in frames:
+            crowd.set_rotations(start)
+            rep = crowd.solve(targets, method="ccd", max_iterations=10, tolerance=wl.tolerance, orientations=axes)
+            got.append((rep, crowd.joint_positions()))
+        out.append(got)
+    monkeypatch.undo()
+    for (a, pa), (b, pb) in zip(*out):
+        assert np.array_equal(a.status, b.status) and np.mean(a.iterations == b.iterations) >= 0.99
+        assert a.iterations.max() > 1
+        d = np.abs(pa - pb).max(axis=(1, 2))
+        assert np.mean(d <= 1e-4) >= 0.99, np.sort(d)[-3:]
+
+
+def test_limited_lanes_keep_the_characters_apart():
+    """Humanoids with flat soles, the crowd solved in another order: every character's pose bit for bit."""
+    if settings.limited_lanes() <= 1:
+        pytest.skip("limited lanes off")
+    n = 2 * settings.limited_lanes() + 3
+    wl, frames, axes = _game(n, True)
+    out = []
+    for order in (np.arange(n), np.roll(np.arange(n), 3)):
+        crowd = cik.Crowd(wl.rig, n, spacing=2.0)
+        roots, yaw = crowd.roots()
+        crowd.set_roots(roots[order], yaw[order])
+        crowd.set_angles(wl.angles[order])
+        rep = crowd.solve(frames[0][order], method="ccd", max_iterations=20, tolerance=wl.tolerance,
+                          orientations=axes)
+        back = np.argsort(order)
+        out.append((rep.iterations[back], crowd.joint_positions()[back] - roots[order][back][:, None, :]))
+    np.testing.assert_array_equal(out[1][0], out[0][0])
+    np.testing.assert_array_equal(out[1][1], out[0][1])
+
+
 def test_lanes_only_where_they_reproduce_the_request(monkeypatch):
-    """Constraint-free rigs with position targets whose characters weight the same effectors (or none) take the lanes;
-    per-character weight patterns, orientation targets and limited rigs take the one-character kernel."""
+    """Requests whose characters weight the same effectors (or none) take the lanes (a limited rig or orientation
+    targets up to settings.CCD_LIMITED_MAX_SWEEPS sweeps); per-character weight patterns and rotation targets take
+    the one-character kernel."""
     calls = []
     real = adapter._solve_lanes
     monkeypatch.setattr(adapter, "_solve_lanes", lambda *a: calls.append(1) or real(*a))
     rig = _tree()
     crowd, targets, weights = _case(rig, 8, seed=2)
     crowd.solve(targets, method="ccd", weights=weights, max_iterations=5)
-    assert calls == [1]
+    assert len(calls) == 1
     weights[3] = 0.0  # a character weighting nothing: the same pattern among the others
     crowd.solve(targets, method="ccd", weights=weights, max_iterations=5)
-    assert calls == [1, 1]
+    assert len(calls) == 2
     weights[4, 0] = 0.0  # another pattern for one character
     crowd.solve(targets, method="ccd", weights=weights, max_iterations=5)
-    assert calls == [1, 1]
-    pointed = cik.Rig(rig.joints, (cik.Effector("left", 5, axis=(1.0, 0.0, 0.0)), cik.Effector("right", 6)))
-    crowd = cik.Crowd(pointed, n=8, spacing=1.5)
-    axes = np.zeros((8, 2, 3), np.float32)
-    axes[:, 0] = (0.0, 1.0, 0.0)
-    crowd.solve(targets, method="ccd", max_iterations=5)
-    assert calls == [1, 1, 1]
-    crowd.solve(targets, method="ccd", orientations=axes, max_iterations=5)
-    assert calls == [1, 1, 1]
+    assert len(calls) == 2
     human = cik.Crowd(cik.Rig.humanoid(), n=4)
-    human.solve(human.effector_positions(), method="ccd", max_iterations=2)
-    assert calls == [1, 1, 1]
+    rots = np.zeros((4, human.rig.n_effectors, 4), np.float32)
+    rots[..., 3] = 1.0
+    human.solve(human.effector_positions(), method="ccd", max_iterations=2, rotations=rots)
+    assert len(calls) == 2
+    limited = 1 if settings.limited_lanes() > 1 else 0
+    human.solve(human.effector_positions() + np.float32(0.05), method="ccd", max_iterations=2)
+    assert len(calls) == 2 + limited
+    human.solve(human.effector_positions() + np.float32(0.05), method="ccd",
+                max_iterations=settings.CCD_LIMITED_MAX_SWEEPS + 1)
+    assert len(calls) == 2 + limited

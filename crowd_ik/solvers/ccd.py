@@ -1,8 +1,10 @@
 """CCD for a Crowd: cyclic coordinate descent (kernels/ccd.py), one sweep per iteration, deepest joint first.
 
-A constraint-free rig with position targets only, whose characters all weight the same effectors (or none), runs
-kernels/ccd_lanes.py on the CPU (characters as SIMD lanes); anything else, and CUDA (one lane), the one-character
-kernel."""
+A request whose characters all weight the same effectors (or none), without full rotation targets, runs
+kernels/ccd_lanes.py on the CPU (characters as SIMD lanes): its constraint-free kernel for a constraint-free rig with
+position targets only, its limited one (settings.limited_lanes' width) for joint limits or orientation targets, up to
+settings.CCD_LIMITED_MAX_SWEEPS sweeps;
+anything else, and CUDA (one lane), the one-character kernel (kernels/ccd.py)."""
 
 from __future__ import annotations
 
@@ -90,19 +92,28 @@ def solve(crowd, req) -> None:
 
 
 def lane_weights(crowd, req) -> tuple | None:
-    """The effectors switched on when kernels/ccd_lanes.py reproduces this request (CPU lanes, a constraint-free rig,
-    no orientation or rotation targets, the same effectors weighted by every character that weights any), else None."""
-    if settings.lanes() <= 1 or not crowd.rig.constraint_free or req.rotations is not None:
+    """The effectors switched on when kernels/ccd_lanes.py reproduces this request (CPU lanes, no rotation targets,
+    the same effectors weighted by every character that weights any; a rig with limits or orientation targets also
+    needs the limited lanes switched on, settings.limited_lanes, and at most settings.CCD_LIMITED_MAX_SWEEPS sweeps),
+    else None."""
+    if settings.lanes() <= 1 or req.rotations is not None:
         return None
-    if not crowd.buffers.orient_zero:
+    if not _free(crowd) and (settings.limited_lanes() <= 1 or req.max_iterations > settings.CCD_LIMITED_MAX_SWEEPS):
         return None
     return weighted_effectors(crowd.buffers.weights)
+
+
+def _free(crowd) -> bool:
+    """Whether the constraint-free lane kernel takes the request: no limits, no orientation targets."""
+    return crowd.rig.constraint_free and crowd.buffers.orient_zero
 
 
 def _solve_lanes(crowd, req, below, reach, weighted: tuple) -> None:
     from crowd_ik.kernels import ccd_lanes, lane_plan
 
-    ra, L, rig = crowd.rig_arrays, settings.lanes(), crowd.rig
+    ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
+    free = _free(crowd)
+    L = settings.lanes() if free else settings.limited_lanes()
     kept = crowd.__dict__.setdefault("_ccd_lane_inputs", {})
     if weighted not in kept:  # the pattern's joints and effectors as ndarrays, uploaded once
         active, on = crowd.scratch(f"ccd_active_{len(kept)}", crowd.ti.i32, (rig.n_joints,)), \
@@ -111,8 +122,10 @@ def _solve_lanes(crowd, req, below, reach, weighted: tuple) -> None:
         on.from_numpy(np.asarray(weighted, np.int32))
         kept[weighted] = (active, on)
     active, on = kept[weighted]
-    prepared(ccd_lanes.free_ccd_solver(L, lane_plan.capacity(rig.n_joints), lane_plan.capacity(rig.n_effectors)))(
-        ra["parent"], ra["offset"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"], below, reach,
-        active, on, *bundles.pose(crowd), *bundles.goal(crowd, orientations=False),
-        lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, *bundles.result(crowd),
+    kernel = ccd_lanes.ccd_solver(L, lane_plan.capacity(rig.n_joints), lane_plan.capacity(rig.n_effectors), not free)
+    prepared(kernel)(
+        ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["lim_h"], ra["cone"],
+        ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"], ra["eff_axis"], below, reach, active,
+        on, *bundles.pose(crowd), *bundles.goal(crowd), int(not b.orient_zero), lane_plan.streams(crowd.n, L),
+        req.max_iterations, req.tolerance, req.rotation_tolerance, *bundles.result(crowd),
     )
