@@ -39,6 +39,8 @@ from crowd_ik.kernels.ccd_steps import (
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, swing, vec3, vec4, yaw_quat
 from crowd_ik.kernels.rotation_goals import rotation_error, turn_error
 from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.solvers.settings import CCD_FLAT as FLAT
+from crowd_ik.solvers.settings import CCD_STALL_AFTER as STALL_AFTER
 
 ndarray = ti.types.ndarray
 
@@ -245,13 +247,13 @@ def ccd_solve(
                 new_turn = ti.max(new_turn, rotation_error(i, eff_joint, rot_t, rot_w, world_rot))
             it += 1
             # stalled: four sweeps in a row that improved neither error by 0.01 %
-            if new_err > err * (1.0 - 1e-4) and new_turn >= turn * (1.0 - 1e-4):
+            if new_err > err * (1.0 - FLAT) and new_turn >= turn * (1.0 - FLAT):
                 flat += 1
             else:
                 flat = 0
             err = new_err
             turn = new_turn
-            if flat >= 4:
+            if flat >= STALL_AFTER:
                 stop = 1
         for j in range(parent.shape[0]):
             world_pos[i, j] += root_pos[i]

@@ -11,7 +11,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_trig as lt
-from crowd_ik.kernels.ccd_steps import MULTI_ROUNDS
+from crowd_ik.solvers.settings import CCD_MULTI_ROUNDS as MULTI_ROUNDS
 
 
 def lane_steps(L: int, ex, ey, ez, tx, ty, tz, tw):

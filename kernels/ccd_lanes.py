@@ -28,13 +28,13 @@ from crowd_ik.kernels.ccd_lane_steps import lane_steps
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.quat import qmul, qrot, yaw_quat
 from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.solvers.settings import CCD_FLAT as FLAT
+from crowd_ik.solvers.settings import CCD_STALL_AFTER as STALL_AFTER
 
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
-FLAT = 1e-4  # kernels/ccd.py: a sweep that improves the errors by less than this share is flat
-STALL_AFTER = 4  # flat sweeps in a row that make a stall
 
 
 @functools.cache

@@ -4,11 +4,9 @@ effectors, the reach step, the straighten step, the limit clamp, and FK below a 
 import taichi as ti
 
 from crowd_ik.kernels.quat import constrain_rotation, qmul, qnormalize, qrot, swing, twist_angle, vec3, vec4, wrap_angle
+from crowd_ik.solvers.settings import CCD_MULTI_ROUNDS as MULTI_ROUNDS
 
 ndarray = ti.types.ndarray
-
-# rounds of swing averaging at a joint with several effectors below it
-MULTI_ROUNDS = 4
 
 
 @ti.func

@@ -17,8 +17,7 @@ from crowd_ik.geometry.quat import (
 )
 from crowd_ik.reference.rotation_goals import turn_error
 from crowd_ik.rig import Rig
-
-MULTI_ROUNDS = 4
+from crowd_ik.solvers.settings import CCD_FLAT, CCD_MULTI_ROUNDS as MULTI_ROUNDS, CCD_STALL_AFTER
 LIMB_DAMP = 0.05
 LIMB_REACH = 0.98
 PASS_UP = 2.0
@@ -332,11 +331,11 @@ def ccd_solve(rig: Rig, root_pos, root_yaw, rot, targets, weights=None, orient=N
         new_turn = turn_of(wrot)
         iters += running
         # stalled: four sweeps in a row that improved neither error by 0.01 %
-        flat = np.where(running, np.where((new_err > err * (1.0 - 1e-4)) & (new_turn >= turn * (1.0 - 1e-4)),
+        flat = np.where(running, np.where((new_err > err * (1.0 - CCD_FLAT)) & (new_turn >= turn * (1.0 - CCD_FLAT)),
                                           flat + 1, 0), flat)
         err = np.where(running, new_err, err)
         turn = np.where(running, new_turn, turn)
-        stalled |= running & (flat >= 4)
+        stalled |= running & (flat >= CCD_STALL_AFTER)
     return dict(rot=rot, pos=pos, wrot=wrot, error=err, iterations=iters, stalled=stalled)
 
 

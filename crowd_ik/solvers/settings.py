@@ -28,6 +28,9 @@ FABRIK_STALL_AFTER, FABRIK_FLAT = 4, 1e-6
 # A joint with several active children (a sub-base) turns by the weighted mean of their swings, refined
 # this many times (4 rounds fit no better than 2 on the humanoid and cost 15 % more per iteration).
 SWING_ROUNDS = 2
+# CCD has stalled after CCD_STALL_AFTER sweeps in a row that improve neither error by CCD_FLAT of itself
+CCD_STALL_AFTER, CCD_FLAT = 4, 1e-4
+CCD_MULTI_ROUNDS = 4  # rounds of swing averaging at a CCD joint with several effectors below it
 # FABRIK's windowed solve (solvers/fabrik_restart.py) runs in windows of FABRIK_WINDOW iterations (a solve of at
 # most this many is one launch, as without windows); a window that leaves more than FABRIK_SLOW of the error it
 # started with is slow: its angles are tracked for jumps.
