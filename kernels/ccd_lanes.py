@@ -36,7 +36,6 @@ vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
 
-
 @functools.cache
 def ccd_solver(L: int, max_joints: int, max_effectors: int, limited: bool):
     """The kernel for L lanes per stream and scratch of max_joints and max_effectors rows per stream: l* (local
