@@ -23,6 +23,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels import lane_trig as lt
 from crowd_ik.kernels.ccd_lane_steps import lane_steps
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
@@ -216,16 +217,6 @@ def ccd_solver(L: int, max_joints: int, max_effectors: int, limited: bool):
                             fk_after(s, j, has, parent, offset)
 
     @ti.func
-    def lane_error(s, eff_joint: ti.template()):
-        """ccd_steps.relative_error per lane: max over weighted effectors of |effector - target|."""
-        err = V(0.0)
-        for e in range(eff_joint.shape[0]):
-            k = eff_joint[e]
-            n = lm.norm3(px[s, k] - tx[s, e], py[s, k] - ty[s, e], pz[s, k] - tz[s, e])
-            err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
-        return err
-
-    @ti.func
     def lane_turn(s, eff_joint: ti.template(), eff_axis: ti.template()):
         """rotation_goals.turn_error per lane: max over effectors with an axis target of its angle, radians."""
         turn = V(0.0)
@@ -354,16 +345,10 @@ def ccd_solver(L: int, max_joints: int, max_effectors: int, limited: bool):
                             orient_pass(s, going, parent, offset, kind, axes, lo, hi, lim_p, lim_h, cone, dof_start,
                                         child_start, child_list, eff_joint, eff_axis, active, eff_on)
                             new_turn = lane_turn(s, eff_joint, eff_axis)
-                    new_err = lane_error(s, eff_joint)
-                    it = it + live
+                    new_err = ls.lane_error(s, eff_joint, px, py, pz, tx, ty, tz, tw)  # ccd_steps.relative_error
                     # stalled: four sweeps in a row that improved neither error by 0.01 %
-                    flat_now = (new_err > err * (1.0 - FLAT)) & (new_turn >= turn * (1.0 - FLAT))
-                    flat = ti.select(going, ti.select(flat_now, flat + 1.0, 0.0), flat)
-                    err = ti.select(going, new_err, err)
-                    turn = ti.select(going, new_turn, turn)
-                    done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
-                                    | ((err <= tolerance) & (turn <= rotation_tolerance)))
-                    pending = ti.select(done, 1.0, 0.0)
-                    live = ti.select(done, 0.0, live)
+                    err, turn, it, flat, pending, live = ls.stop_rule(live, new_err, new_turn, err, turn, it, flat, FLAT,
+                                                                      STALL_AFTER, max_iterations, tolerance,
+                                                                      rotation_tolerance)
 
     return solve

@@ -40,6 +40,7 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
@@ -61,17 +62,6 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
     # from a fixed base (an ndarray's pointer and shape are reloaded after every store to any array)
     px, py, pz, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
     tx, ty, tz, tw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_effectors)) for _ in range(4))
-
-    @ti.func
-    def lane_error(s, eff_joint: ti.template(), px: ti.template(), py: ti.template(), pz: ti.template(),
-                   tx: ti.template(), ty: ti.template(), tz: ti.template(), tw: ti.template()):
-        """Max over effectors with positive weight of |effector - target|, per lane."""
-        err = V(0.0)
-        for e in range(eff_joint.shape[0]):
-            k = eff_joint[e]
-            n = lm.norm3(px[s, k] - tx[s, e], py[s, k] - ty[s, e], pz[s, k] - tz[s, e])
-            err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
-        return err
 
     @ti.kernel
     def solve(
@@ -198,16 +188,12 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                         px[s, j] = ti.select(move, nx, px[s, j])
                         py[s, j] = ti.select(move, ny, py[s, j])
                         pz[s, j] = ti.select(move, nz, pz[s, j])
-                    new_err = lane_error(s, eff_joint, px, py, pz, tx, ty, tz, tw)
-                    going = live > 0.0
-                    it = it + live
+                    new_err = ls.lane_error(s, eff_joint, px, py, pz, tx, ty, tz, tw)
                     # stalled: STALL_AFTER updates in a row that improved the error by less than one part in FLAT
-                    flat = ti.select(going, ti.select(new_err > err * (1.0 - FLAT), flat + 1.0, 0.0), flat)
-                    err = ti.select(going, new_err, err)
-                    done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
-                                    | (err <= tolerance))
-                    pending = ti.select(done, 1.0, 0.0)
-                    live = ti.select(done, 0.0, live)
+                    # (no orientation error here: both turns stay 0)
+                    err, _turn, it, flat, pending, live = ls.stop_rule(live, new_err, V(0.0), err, V(0.0), it, flat,
+                                                                       FLAT, STALL_AFTER, max_iterations, tolerance,
+                                                                       0.0)
 
     return solve
 

@@ -28,6 +28,7 @@ import taichi as ti
 from crowd_ik.kernels import lane_align as la
 from crowd_ik.kernels import lane_limits as lim
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.compile_settings import with_opt_level0
 from crowd_ik.kernels.fabrik_lane_joints import joint_steps
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
@@ -180,16 +181,6 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
             rx[s, j], ry[s, j], rz[s, j], rw[s, j] = lm.qmul(bqx, bqy, bqz, bqw, qx, qy, qz, qw)
 
     @ti.func
-    def lane_error(s, eff_joint: ti.template()):
-        """Max over effectors with positive weight of |effector - target|, per lane."""
-        err = V(0.0)
-        for e in range(eff_joint.shape[0]):
-            k = eff_joint[e]
-            n = lm.norm3(fx[s, k] - tx[s, e], fy[s, k] - ty[s, e], fz[s, k] - tz[s, e])
-            err = ti.select(tw[s, e] > 0.0, ti.max(err, n), err)
-        return err
-
-    @ti.func
     def lane_turn(s, eff_joint: ti.template(), eff_axis: ti.template()):
         """fabrik.orientation_error per lane: max over effectors with an orientation target of 1 - cos(angle
         between its axis and the target)."""
@@ -330,20 +321,13 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                         wz[s, j] = ti.select(on, bz + b.w * uz, wz[s, j])
                     sweep(s, going, parent, offset, kind, axes, lo, hi, lim_p, lim_h, cone, dof_start, child_start,
                           child_list, active, eff_joint, eff_axis, use_orient)
-                    new_err = lane_error(s, eff_joint)
+                    new_err = ls.lane_error(s, eff_joint, fx, fy, fz, tx, ty, tz, tw)
                     new_turn = V(0.0)
                     if use_orient:
                         new_turn = lane_turn(s, eff_joint, eff_axis)
-                    it = it + live
                     # stalled: four updates in a row that improved neither error by one part in a million
-                    flat_now = (new_err > err * (1.0 - FLAT)) & (new_turn >= turn * (1.0 - FLAT))
-                    flat = ti.select(going, ti.select(flat_now, flat + 1.0, 0.0), flat)
-                    err = ti.select(going, new_err, err)
-                    turn = ti.select(going, new_turn, turn)
-                    done = going & ((flat >= STALL_AFTER) | (it >= ti.cast(max_iterations, ti.f32))
-                                    | ((err <= tolerance) & (turn <= 1e-6)))
-                    pending = ti.select(done, 1.0, 0.0)
-                    live = ti.select(done, 0.0, live)
+                    err, turn, it, flat, pending, live = ls.stop_rule(live, new_err, new_turn, err, turn, it, flat, FLAT,
+                                                                      STALL_AFTER, max_iterations, tolerance, 1e-6)
 
     # Taichi's whole-kernel CSE off for this kernel: 2.3x sooner compiled, the same poses bit for bit
     # (kernels/compile_settings.py)
