@@ -10,6 +10,7 @@ from crowd_ik.crowd import Status
 from crowd_ik.reference.ccd import ccd_solve
 from crowd_ik.solvers import ccd as adapter
 from crowd_ik.solvers import settings
+from rig_cases import free_tree
 
 
 @pytest.fixture(autouse=True)
@@ -18,16 +19,7 @@ def lanes_only():
         pytest.skip("lane width 1 (CUDA)")
 
 
-def _tree():
-    """A constraint-free tree of 7 joints (a sub-base with two branches), two effectors."""
-    return cik.Rig(
-        tuple(cik.Joint(n, p, o) for n, p, o in [("root", -1, (0, 0, 0)), ("a", 0, (0, 0.3, 0)), ("b", 1, (0, 0.3, 0)),
-                                              ("l", 2, (0.2, 0.1, 0)), ("r", 2, (-0.2, 0.1, 0)), ("lt", 3, (0.2, 0, 0)),
-                                              ("rt", 4, (-0.2, 0, 0))]),
-        (cik.Effector("left", 5), cik.Effector("right", 6)))
-
-
-RIGS = {"chain": lambda: cik.Rig.chain(7, 0.2, dim=3), "tree": _tree}
+RIGS = {"chain": lambda: cik.Rig.chain(7, 0.2, dim=3), "tree": free_tree}
 
 
 def _case(rig, n, seed):
@@ -179,7 +171,7 @@ def test_limited_lanes_keep_the_characters_apart():
         rep = crowd.solve(frames[0][order], method="ccd", max_iterations=20, tolerance=wl.tolerance,
                           orientations=axes)
         back = np.argsort(order)
-        out.append((rep.iterations[back], crowd.joint_positions()[back] - roots[order][back][:, None, :]))
+        out.append((rep.iterations[back], crowd.joint_positions()[back] - roots[:, None, :]))
     np.testing.assert_array_equal(out[1][0], out[0][0])
     np.testing.assert_array_equal(out[1][1], out[0][1])
 
@@ -191,7 +183,7 @@ def test_lanes_only_where_they_reproduce_the_request(monkeypatch):
     calls = []
     real = adapter._solve_lanes
     monkeypatch.setattr(adapter, "_solve_lanes", lambda *a: calls.append(1) or real(*a))
-    rig = _tree()
+    rig = free_tree()
     crowd, targets, weights = _case(rig, 8, seed=2)
     crowd.solve(targets, method="ccd", weights=weights, max_iterations=5)
     assert len(calls) == 1

@@ -10,6 +10,7 @@ from hypothesis import given, settings, strategies as st, HealthCheck
 import crowd_ik as cik
 from crowd_ik.crowd import Status
 from crowd_ik.reference.fabrik import fabrik_solve
+from rig_cases import free_tree
 
 
 def ball_targets(n, radius, dim, seed):
@@ -168,14 +169,6 @@ def test_orientation_target_turns_the_sole_flat():
     assert np.all(up[:, 1] > math.cos(math.radians(2)))
 
 
-def _free_tree():
-    return cik.Rig(
-        tuple(cik.Joint(n, p, o) for n, p, o in [("root", -1, (0, 0, 0)), ("a", 0, (0, 0.3, 0)), ("b", 1, (0, 0.3, 0)),
-                                              ("l", 2, (0.2, 0.1, 0)), ("r", 2, (-0.2, 0.1, 0)), ("lt", 3, (0.2, 0, 0)),
-                                              ("rt", 4, (-0.2, 0, 0))]),
-        (cik.Effector("left", 5), cik.Effector("right", 6)))
-
-
 def _free_case(rig, n, seed=21):
     """n characters of a constraint-free rig with targets that start on the target, leave reach, or are near."""
     rng = np.random.default_rng(seed)
@@ -203,7 +196,7 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
 
     L = lanes or settings.lanes()
     monkeypatch.setattr(settings, "lanes", lambda: L)
-    for rig in (cik.Rig.chain(7, 0.2, dim=3), _free_tree()):
+    for rig in (cik.Rig.chain(7, 0.2, dim=3), free_tree()):
         assert rig.constraint_free
         n = 3 * L + 5
         crowd, targets, weights = _free_case(rig, n)
@@ -237,7 +230,7 @@ def test_lane_packed_free_kernel_equals_the_per_character_kernel(monkeypatch, la
 
 def test_lane_packed_free_kernel_batch_equals_one_at_a_time():
     """A character alone in a padded packet gets what it gets among lane-mates (lanes are independent)."""
-    rig = _free_tree()
+    rig = free_tree()
     crowd, targets, weights = _free_case(rig, 21, seed=5)
     batch = crowd.solve(targets, weights=weights, max_iterations=30, tolerance=1e-4)
     pos = crowd.joint_positions()

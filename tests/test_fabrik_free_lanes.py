@@ -9,15 +9,7 @@ import crowd_ik as cik
 from crowd_ik.crowd import Status
 from crowd_ik.geometry.fk import forward_kinematics
 from crowd_ik.reference.fabrik import fabrik_solve
-
-
-def _tree():
-    """A constraint-free tree of 7 joints (a sub-base with two branches), two effectors."""
-    return cik.Rig(
-        tuple(cik.Joint(n, p, o) for n, p, o in [("root", -1, (0, 0, 0)), ("a", 0, (0, 0.3, 0)), ("b", 1, (0, 0.3, 0)),
-                                              ("l", 2, (0.2, 0.1, 0)), ("r", 2, (-0.2, 0.1, 0)), ("lt", 3, (0.2, 0, 0)),
-                                              ("rt", 4, (-0.2, 0, 0))]),
-        (cik.Effector("left", 5), cik.Effector("right", 6)))
+from rig_cases import free_tree
 
 
 def _case(rig, n, seed):
@@ -38,7 +30,7 @@ def _case(rig, n, seed):
     return crowd, angles, targets, weights
 
 
-RIGS = {"chain": lambda: cik.Rig.chain(7, 0.2, dim=3), "tree": _tree}
+RIGS = {"chain": lambda: cik.Rig.chain(7, 0.2, dim=3), "tree": free_tree}
 
 
 @pytest.mark.parametrize("name", sorted(RIGS))
@@ -112,7 +104,7 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
     from crowd_ik.kernels import fabrik_lanes, lane_plan
     from crowd_ik.solvers import bundles, settings
 
-    rig = _tree()
+    rig = free_tree()
     n = 2 * settings.lanes() + 7
     crowd, angles, targets, weights = _case(rig, n, seed=8)
     batch = crowd.solve(targets, weights=weights, max_iterations=40, tolerance=1e-4)
