@@ -56,30 +56,33 @@ def limb_lengths(rig, move: np.ndarray) -> np.ndarray:
     return out
 
 
-def solve(crowd, req) -> None:
+def _rig_constants(crowd) -> tuple:
+    """The rig's CCD constants as ndarrays, uploaded once per crowd: below (J, E) 1 where effector e's joint lies in
+    joint j's subtree (j included), reach (E,), eff_move (E, 2) (moving_joints) and limb_len (E, 2) (limb_lengths)."""
     ti, rig = crowd.ti, crowd.rig
-    # below[j, e] = 1 where effector e's joint lies in joint j's subtree (j included)
-    below_np = np.zeros((rig.n_joints, rig.n_effectors), np.int32)
-    for e, eff in enumerate(rig.effectors):
-        below_np[rig.path_to_root(eff.joint), e] = 1
-    below = crowd.scratch("ccd_below", ti.i32, below_np.shape)
-    below.from_numpy(below_np)
-    reach = crowd.scratch("ccd_reach", ti.f32, (rig.n_effectors,))
-    reach.from_numpy(rig.reach.astype(np.float32))
+    names = ("ccd_below", "ccd_reach", "ccd_eff_move", "ccd_limb_len")
+    if any(crowd._scratch.get(name) is None for name in names):
+        below = np.zeros((rig.n_joints, rig.n_effectors), np.int32)
+        for e, eff in enumerate(rig.effectors):
+            below[rig.path_to_root(eff.joint), e] = 1
+        move = moving_joints(rig)
+        values = (below, rig.reach.astype(np.float32), move, limb_lengths(rig, move).astype(np.float32))
+        for name, value in zip(names, values):
+            crowd.scratch(name, ti.i32 if value.dtype == np.int32 else ti.f32, value.shape).from_numpy(value)
+    return tuple(crowd._scratch[name] for name in names)
+
+
+def solve(crowd, req) -> None:
     from crowd_ik.kernels import ccd
 
-    b = crowd.buffers
+    ti, rig, b = crowd.ti, crowd.rig, crowd.buffers
+    below, reach, move, limb = _rig_constants(crowd)
     weighted = lane_weights(crowd, req)
     if weighted is not None:
         _solve_lanes(crowd, req, below, reach, weighted)
         return
     # compile time: the plain sweep stays as it was; 1 axis targets, 2 full rotation targets
     goals = int(not b.orient_zero) | (6 if req.rotations is not None else 0)  # 4: limb_weights
-    move = crowd.scratch("ccd_eff_move", ti.i32, (rig.n_effectors, 2))
-    move_np = moving_joints(rig)
-    move.from_numpy(move_np)
-    limb = crowd.scratch("ccd_limb_len", ti.f32, (rig.n_effectors, 2))
-    limb.from_numpy(limb_lengths(rig, move_np).astype(np.float32))
     ccd.ccd_solve(
         *bundles.limited_rig(crowd), below, reach, *bundles.pose(crowd), *bundles.goal(crowd),
         *bundles.rotation_goal(crowd), move,
