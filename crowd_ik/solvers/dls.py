@@ -2,8 +2,9 @@
 
 One position effector on a constraint-free rig with no secondary terms has a closed-form 3 x 3
 system: characters as SIMD lanes (kernels/dls_lanes.py; on CUDA one per thread, kernels/dls_free.py).
-Everything else runs the general kernel (kernels/dls.py: LM damping, joint-limit active set,
-orientation rows, rest / velocity / balance terms).
+Everything else runs the general solve (LM damping, joint-limit active set, orientation rows, rest / velocity /
+balance terms): on the CPU without rotation targets, secondary terms or a free root as SIMD lanes
+(kernels/dls_general_lanes.py, settings.general_lanes' width), else one character per thread (kernels/dls.py).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.dls_setup import dls_settings
-from crowd_ik.solvers.limits import limit_pseudo_angles
+from crowd_ik.solvers.limits import limit_half_turns, limit_pseudo_angles
 
 
 def solve(crowd, req) -> None:
@@ -44,24 +45,10 @@ def _general(crowd, req) -> None:
     if req.root_weight is not None:
         extra |= 4
         C += 3
-    jw = None if req.joint_weights is None else req.joint_weights
-    key = ("general", req.damping, None if jw is None else jw.tobytes(), req.root_weight)
-    cfg, small = _loaded(crowd, key)
-    if small is None:  # new settings: computed and uploaded (a game's solves reuse them)
-        cfg = dls_settings(rig, req.damping, jw)
-        joint_w = np.zeros(C, np.float32)
-        joint_w[: rig.n_dof] = 1.0 if jw is None else jw
-        if req.root_weight is not None:
-            joint_w[D + 1 : D + 1 + rig.dim] = req.root_weight  # a planar rig's root stays in its plane
-        small = {}  # per-solve settings: a few dozen numbers
-        for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
-                            ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
-                            ("lim_p", limit_pseudo_angles(cfg["lo32"], cfg["hi32"])),
-                            ("com_w", cfg["com_w"].astype(np.float32)),
-                            ("support_w", cfg["support_w"].astype(np.float32))):
-            small[name] = crowd.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
-            small[name].from_numpy(value)
-        _store(crowd, key, cfg, small)
+    cfg, small = _general_settings(crowd, req, C)
+    if extra == 0 and settings.general_lanes() > 1:
+        _general_lanes(crowd, req, cfg, small)
+        return
     prepared(dls.dls_solve)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
         small["lim_p"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
@@ -75,6 +62,70 @@ def _general(crowd, req) -> None:
         crowd.scratch("dls_sys", ti.f32, (N, R, R)),
         req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
         req.rest_weight, req.velocity_weight, req.balance_weight, extra, *bundles.result(crowd),
+    )
+
+
+def _general_settings(crowd, req, C: int) -> tuple:
+    """(cfg, the uploaded per-solve settings) of the general solve, computed and uploaded when they change (a game's
+    solves reuse them)."""
+    ti, rig = crowd.ti, crowd.rig
+    jw = None if req.joint_weights is None else req.joint_weights
+    key = ("general", req.damping, None if jw is None else jw.tobytes(), req.root_weight)
+    cfg, small = _loaded(crowd, key)
+    if small is None:
+        cfg = dls_settings(rig, req.damping, jw)
+        joint_w = np.zeros(C, np.float32)
+        joint_w[: rig.n_dof] = 1.0 if jw is None else jw
+        if req.root_weight is not None:
+            D1 = max(rig.n_dof, 1) + 1
+            joint_w[D1 : D1 + rig.dim] = req.root_weight  # a planar rig's root stays in its plane
+        small = {}  # per-solve settings: a few dozen numbers
+        for name, value in (("eff_lim", cfg["eff_lim"]), ("joint_w", joint_w), ("jmode", cfg["jmode"]),
+                            ("lo", cfg["lo32"]), ("hi", cfg["hi32"]),
+                            ("lim_p", limit_pseudo_angles(cfg["lo32"], cfg["hi32"])),
+                            ("lim_h", limit_half_turns(cfg["lo32"], cfg["hi32"])),
+                            ("com_w", cfg["com_w"].astype(np.float32)),
+                            ("support_w", cfg["support_w"].astype(np.float32))):
+            small[name] = crowd.scratch(f"dls_{name}", ti.i32 if value.dtype == np.int32 else ti.f32, value.shape)
+            small[name].from_numpy(value)
+        _store(crowd, key, cfg, small)
+    return cfg, small
+
+
+def row_layout(rig, weights: np.ndarray, orient: np.ndarray | None) -> np.ndarray:
+    """(E,) int32, the general lanes' rows per effector: 0 where no character weights it, 1 for its 3 position rows,
+    2 where some character that weights it also gives it an orientation target (its axis rows too)."""
+    on = weights > 0.0
+    rows = on.any(axis=0).astype(np.int32)
+    if orient is not None:
+        ori = on & (np.einsum("nec,nec->ne", orient, orient) > 0.0) & (rig.arrays["eff_has_axis"] != 0)
+        rows[ori.any(axis=0)] = 2
+    return rows
+
+
+def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
+    """kernels/dls_general_lanes.py: the general solve without its extra terms, characters as SIMD lanes."""
+    from crowd_ik.kernels import dls_general_lanes, lane_plan
+
+    ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
+    layout = row_layout(rig, b.weights, None if b.orient_zero else b.orient)
+    kept = crowd.__dict__.setdefault("_dls_row_layouts", {})
+    key = layout.tobytes()
+    if key not in kept:  # uploaded once per layout
+        kept[key] = crowd.scratch(f"dls_rows_{len(kept)}", crowd.ti.i32, (rig.n_effectors,))
+        kept[key].from_numpy(layout)
+    L = settings.general_lanes()
+    n_rows = int(3 * np.count_nonzero(layout) + 2 * np.count_nonzero(layout == 2))
+    C = small["joint_w"].shape[0]
+    cap = lane_plan.capacity
+    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints), cap(C), cap(max(5 * rig.n_effectors, 1)),
+                                              cap(rig.n_effectors))
+    prepared(kernel)(
+        ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
+        small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], kept[key], small["joint_w"], *bundles.pose(crowd),
+        *bundles.goal(crowd), n_rows, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance,
+        cfg["damping"], cfg["length"], *bundles.result(crowd),
     )
 
 

@@ -151,3 +151,12 @@ def limited_lanes() -> int:
     if os.environ.get("CROWD_IK_LIMITED_LANES", "1") == "0":
         return 0
     return min(lanes(), LIMITED_LANES_MAX)
+
+
+def general_lanes() -> int:
+    """The lane width of the general DLS lanes (kernels/dls_general_lanes.py): limited_lanes()' (its IR grows with
+    the width as theirs does); 0 or 1, the one-character kernel (kernels/dls.py), with CROWD_IK_GENERAL_LANES=0 or
+    on CUDA."""
+    if os.environ.get("CROWD_IK_GENERAL_LANES", "1") == "0":
+        return 0
+    return limited_lanes()

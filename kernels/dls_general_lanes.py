@@ -1,0 +1,516 @@
+"""The general DLS (kernels/dls.py: LM damping, the joint-limit active set, escapes, orientation rows) with
+characters as SIMD lanes, for requests without its extra terms (no rotation targets, secondary terms or free root).
+
+As kernels/ccd_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``; S
+streams, each a contiguous range of characters whose lanes refill (a lane whose character is done writes its
+result and takes the stream's next character); the streams' state lives in fields of compile-time shape. Each
+pass of dls_solve's attempt loop runs for a whole packet, every lane at its own place in it: a lane's first pass
+projects its start pose, a kick lane takes its escape step, the others a DLS step; which of the loop's branches a
+lane takes (accept, reject, stall, escape, return to the saved pose) is a per-lane select, and the costly ones
+(restoring a pose, the kick, building and solving the system) run only when some lane needs them. The active
+set's rounds repeat while some lane froze a DOF.
+
+The rows are laid out by the request, the same for every lane (``eff_rows``: 3 rows for an effector that some
+character weights, 2 more where some character also gives it an orientation target): a lane that does not weight
+an effector, or gives it no orientation target, has zero rows there. A zero row of J adds a row and column of
+J W J^T + lam^2 I that are zero off the diagonal, so its Cholesky factor, back substitution and step are those of
+the one-character kernel's compacted system plus exact zeros. A character's start (its angles from its rotations)
+and its result are handled one lane at a time with the one-character kernel's scalar code.
+"""
+
+import functools
+
+import taichi as ti
+
+from crowd_ik.kernels import dls_lane_steps as dl
+from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels.dls_pose import first_bone
+from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
+from crowd_ik.kernels.quat import joint_angles, yaw_quat
+from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.solvers.settings import (
+    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_KICK as KICK, DLS_LAM_CAP as LAM_CAP,
+    DLS_LIMIT_EPS as LIMIT_EPS, DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_ORI_CLAMP as ORI_CLAMP, DLS_PROGRESS as PROGRESS,
+    DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
+)
+
+ndarray = ti.types.ndarray
+vec3 = ti.math.vec3
+vec4 = ti.math.vec4
+ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
+
+
+@functools.cache
+def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int):
+    """The kernel for L lanes per stream and scratch of max_joints, max_cols (DOFs + 1), max_rows and max_effectors
+    per stream: l* (local rotations), b* (their backup before a step), v* (saved before an escape kick), p*
+    (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
+    save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr); the system's jac (rows x
+    columns), sys (its Cholesky factor), e0 (the aimed error), y (the solution); per effector t* (target relative to
+    the root, weight), o* (orientation target); y* the root's yaw rotation."""
+    V = ti.types.vector(L, ti.f32)
+    Vi = ti.types.vector(L, ti.i32)
+    S = MAX_STREAMS
+    (lx, ly, lz, lw, bx, by, bz, bw, vx, vy, vz, vw, px, py, pz,
+     rx, ry, rz, rw) = lane_rows(L, (S, max_joints), 19)
+    th, thb, ths, st, fr, mp = lane_rows(L, (S, max_cols), 6)
+    e0, yv = lane_rows(L, (S, max_rows), 2)
+    (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
+    (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
+    tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
+    qy0, qy1, qy2, qy3 = lane_rows(L, (S,), 4)
+
+    @ti.func
+    def parent_rot(s, j, parent: ti.template()):
+        """dls_pose.parent_rot: the parent's world rotation, or the root's yaw."""
+        ax, ay, az, aw = qy0[s], qy1[s], qy2[s], qy3[s]
+        p = parent[j]
+        if p >= 0:
+            ax, ay, az, aw = rx[s, p], ry[s, p], rz[s, p], rw[s, p]
+        return ax, ay, az, aw
+
+    @ti.func
+    def fk(s, on, parent: ti.template(), offset: ti.template()):
+        """dls_pose.fk_relative in the lanes `on`."""
+        for j in range(parent.shape[0]):
+            o = offset[j]
+            ax, ay, az, aw = parent_rot(s, j, parent)
+            cx, cy, cz = lm.qrot(ax, ay, az, aw, o.x, o.y, o.z)
+            p = parent[j]
+            if p >= 0:
+                cx, cy, cz = px[s, p] + cx, py[s, p] + cy, pz[s, p] + cz
+            else:
+                cx, cy, cz = 0.0 + cx, 0.0 + cy, 0.0 + cz
+            gx, gy, gz, gw = lm.qmul(ax, ay, az, aw, lx[s, j], ly[s, j], lz[s, j], lw[s, j])
+            px[s, j], py[s, j], pz[s, j] = ti.select(on, cx, px[s, j]), ti.select(on, cy, py[s, j]), \
+                ti.select(on, cz, pz[s, j])
+            rx[s, j], ry[s, j] = ti.select(on, gx, rx[s, j]), ti.select(on, gy, ry[s, j])
+            rz[s, j], rw[s, j] = ti.select(on, gz, rz[s, j]), ti.select(on, gw, rw[s, j])
+
+    @ti.func
+    def apply_step(s, on, parent: ti.template(), offset: ti.template(), kind: ti.template(), jmode: ti.template(),
+                   axes: ti.template(), lo: ti.template(), hi: ti.template(), lim_p: ti.template(),
+                   lim_h: ti.template(), cone: ti.template(), dof_start: ti.template(), child_start: ti.template(),
+                   child_list: ti.template(), C):
+        """dls.apply_step in the lanes `on`: back up the pose, add st (angles clamped, cones projected), FK."""
+        for d in range(C):
+            thb[s, d] = ti.select(on, th[s, d], thb[s, d])
+        for j in range(parent.shape[0]):
+            qx, qy, qz, qw = lx[s, j], ly[s, j], lz[s, j], lw[s, j]
+            bx[s, j], by[s, j] = ti.select(on, qx, bx[s, j]), ti.select(on, qy, by[s, j])
+            bz[s, j], bw[s, j] = ti.select(on, qz, bz[s, j]), ti.select(on, qw, bw[s, j])
+            k = kind[j]
+            d = dof_start[j]
+            if k > 0:
+                by_angle = jmode[j] == 1
+                if by_angle:
+                    a0 = ti.math.clamp(th[s, d] + st[s, d], lo[d], hi[d])
+                    a1 = a0 * 0.0
+                    a2 = a0 * 0.0
+                    th[s, d] = ti.select(on, a0, th[s, d])
+                    if k >= 2:
+                        a1 = ti.math.clamp(th[s, d + 1] + st[s, d + 1], lo[d + 1], hi[d + 1])
+                        th[s, d + 1] = ti.select(on, a1, th[s, d + 1])
+                    if k == 3:
+                        a2 = ti.math.clamp(th[s, d + 2] + st[s, d + 2], lo[d + 2], hi[d + 2])
+                        th[s, d + 2] = ti.select(on, a2, th[s, d + 2])
+                    qx, qy, qz, qw = dl.joint_quat(k, axes[j, 0], axes[j, 1], a0, a1, a2)
+                else:
+                    # the world rotation still holds the pose the step was computed at (FK runs after the loop)
+                    ax, ay, az, aw = parent_rot(s, j, parent)
+                    cx, cy, cz = lm.qrot(-ax, -ay, -az, aw, st[s, d], st[s, d + 1], st[s, d + 2])
+                    qx, qy, qz, qw = lm.qnormalize(*lm.qmul(*dl.qexp(cx, cy, cz), qx, qy, qz, qw))
+                if k == 3 and cone[j] > 0.0:
+                    bone = first_bone(j, offset, child_start, child_list)
+                    qx, qy, qz, qw, t0, t1, t2 = dl.clamp_ball(qx, qy, qz, qw, by_angle, lo, hi, lim_p, lim_h, d,
+                                                               cone[j], bone, on)
+                    if by_angle:
+                        th[s, d] = ti.select(on, t0, th[s, d])
+                        th[s, d + 1] = ti.select(on, t1, th[s, d + 1])
+                        th[s, d + 2] = ti.select(on, t2, th[s, d + 2])
+                lx[s, j], ly[s, j] = ti.select(on, qx, lx[s, j]), ti.select(on, qy, ly[s, j])
+                lz[s, j], lw[s, j] = ti.select(on, qz, lz[s, j]), ti.select(on, qw, lw[s, j])
+        fk(s, on, parent, offset)
+
+    @ti.func
+    def objective(s, eff_joint: ti.template(), eff_axis: ti.template(), eff_has_axis: ti.template(),
+                  eff_lim: ti.template(), length):
+        """dls_system.objective without its extra terms, per lane: (F, max position error, orientation error * L)."""
+        f = V(0.0)
+        perr = V(0.0)
+        oerr = V(0.0)
+        for e in range(eff_joint.shape[0]):
+            w = tw[s, e]
+            on = w > 0.0
+            k = eff_joint[e]
+            qx, qy, qz = px[s, k] - px[s, 0], py[s, k] - py[s, 0], pz[s, k] - pz[s, 0]
+            dx, dy, dz = tx[s, e] - px[s, k], ty[s, e] - py[s, k], tz[s, e] - pz[s, k]
+            cx, cy, cz = tx[s, e] - px[s, 0], ty[s, e] - py[s, 0], tz[s, e] - pz[s, 0]
+            dist = lm.norm3(cx, cy, cz)
+            reach = eff_lim[e, 0]
+            qn = lm.norm3(qx, qy, qz)
+            far = w * (2.0 * (dist * reach - lm.dot3(cx, cy, cz, qx, qy, qz)) - (reach - qn) * (reach + qn))
+            near = w * (dx * dx + dy * dy + dz * dz)
+            perr = ti.select(on, ti.max(perr, lm.norm3(dx, dy, dz)), perr)
+            f = ti.select(on, f + ti.select(dist > reach, far, near), f)
+            if eff_has_axis[e] != 0:
+                has = on & (ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0)
+                a = eff_axis[e]
+                ax, ay, az = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
+                ang = length * lm.norm3(*dl.swing_vector(ax, ay, az, ox[s, e], oy[s, e], oz[s, e]))
+                f = ti.select(has, f + w * ang * ang, f)
+                oerr = ti.select(has, ti.max(oerr, ang), oerr)
+        return f, perr, oerr
+
+    @ti.func
+    def build(s, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
+              dof_start: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), eff_lim: ti.template(),
+              eff_rows: ti.template(), length, R, C):
+        """dls_system.build_system without its extra terms, per lane, into the request's row layout (eff_rows)."""
+        for r, d in ti.ndrange(R, C):
+            jac[s, r, d] = V(0.0)
+        r = 0
+        for e in range(eff_joint.shape[0]):
+            if eff_rows[e] > 0:
+                sw = ti.sqrt(ti.max(tw[s, e], 0.0))
+                k = eff_joint[e]
+                ex, ey, ez = px[s, k], py[s, k], pz[s, k]
+                reach, dmax = eff_lim[e, 0], eff_lim[e, 1]
+                gx, gy, gz = tx[s, e], ty[s, e], tz[s, e]
+                cx, cy, cz = gx - px[s, 0], gy - py[s, 0], gz - pz[s, 0]
+                dist = lm.norm3(cx, cy, cz)
+                far = dist > reach + dmax
+                sc = (reach + dmax) / ti.select(far, dist, 1.0)
+                gx = ti.select(far, px[s, 0] + cx * sc, gx)
+                gy = ti.select(far, py[s, 0] + cy * sc, gy)
+                gz = ti.select(far, pz[s, 0] + cz * sc, gz)
+                dx, dy, dz = gx - ex, gy - ey, gz - ez
+                dn = lm.norm3(dx, dy, dz)
+                big = dn > dmax
+                dc = dmax / ti.select(big, dn, 1.0)
+                e0[s, r] = sw * ti.select(big, dx * dc, dx)
+                e0[s, r + 1] = sw * ti.select(big, dy * dc, dy)
+                e0[s, r + 2] = sw * ti.select(big, dz * dc, dz)
+                ori = tw[s, e] < 0.0  # no lane
+                u1x, u1y, u1z, u2x, u2y, u2z = sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0
+                if eff_rows[e] == 2:
+                    ori = ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0
+                    a = eff_axis[e]
+                    ax, ay, az = lm.normalized(*lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z))
+                    wx, wy, wz = dl.swing_vector(ax, ay, az, ox[s, e], oy[s, e], oz[s, e])
+                    ang = lm.norm3(wx, wy, wz)
+                    cl = ang > ORI_CLAMP
+                    ac = ORI_CLAMP / ti.select(cl, ang, 1.0)
+                    wx, wy, wz = ti.select(cl, wx * ac, wx), ti.select(cl, wy * ac, wy), ti.select(cl, wz * ac, wz)
+                    u1x, u1y, u1z = dl.perpendicular(ax, ay, az)
+                    u2x, u2y, u2z = lm.cross(ax, ay, az, u1x, u1y, u1z)
+                    e0[s, r + 3] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z), 0.0)
+                    e0[s, r + 4] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z), 0.0)
+                n = k
+                while n >= 0:
+                    kd = kind[n]
+                    if kd > 0:
+                        d0 = dof_start[n]
+                        ax, ay, az, aw = parent_rot(s, n, parent)
+                        t1 = th[s, d0]
+                        if kd >= 2:
+                            t1 = th[s, d0 + 1]
+                        cols = dl.dof_axes(kd, jmode[n] == 1, axes[n, 0], axes[n, 1], ax, ay, az, aw, th[s, d0], t1)
+                        hx, hy, hz = ex - px[s, n], ey - py[s, n], ez - pz[s, n]
+                        for c in ti.static(range(3)):
+                            if c < kd:
+                                wx, wy, wz = cols[3 * c], cols[3 * c + 1], cols[3 * c + 2]
+                                qx, qy, qz = lm.cross(wx, wy, wz, hx, hy, hz)
+                                jac[s, r, d0 + c] = sw * qx
+                                jac[s, r + 1, d0 + c] = sw * qy
+                                jac[s, r + 2, d0 + c] = sw * qz
+                                if eff_rows[e] == 2:
+                                    jac[s, r + 3, d0 + c] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z), 0.0)
+                                    jac[s, r + 4, d0 + c] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z), 0.0)
+                    n = parent[n]
+                r += 3
+                if eff_rows[e] == 2:
+                    r += 2
+
+    @ti.func
+    def solve_step(s, act, lam2, joint_w: ti.template(), R, C):
+        """dls_system.solve_step without secondary terms, per lane: st = W J^T (J W J^T + lam^2 I)^-1 e0 in the lanes
+        act (W = joint weight times fr); returns 1 per lane, 0 where the float32 Cholesky failed."""
+        for d in range(C):
+            mp[s, d] = joint_w[d] * fr[s, d]
+        for r in range(R):  # dls_system.factor
+            for c in range(r + 1):
+                acc = V(0.0)
+                for d in range(C):
+                    acc += jac[s, r, d] * mp[s, d] * jac[s, c, d]
+                if r == c:
+                    acc += lam2
+                sys[s, r, c] = acc
+        ok = V(1.0)
+        for c in range(R):
+            v = sys[s, c, c]
+            for k in range(c):
+                v -= sys[s, c, k] * sys[s, c, k]
+            bad = v <= 0.0
+            ok = ti.select(bad, 0.0, ok)
+            lc = ti.sqrt(ti.select(bad, 1.0, v))
+            sys[s, c, c] = lc
+            for r in range(c + 1, R):
+                x = sys[s, r, c]
+                for k in range(c):
+                    x -= sys[s, r, k] * sys[s, c, k]
+                sys[s, r, c] = x / lc
+        for r in range(R):  # dls_system.back_solve: L z = b, then L^T y = z
+            x = e0[s, r]
+            for k in range(r):
+                x -= sys[s, r, k] * yv[s, k]
+            yv[s, r] = x / sys[s, r, r]
+        for rr in range(R):
+            r = R - 1 - rr
+            x = yv[s, r]
+            for k in range(r + 1, R):
+                x -= sys[s, k, r] * yv[s, k]
+            yv[s, r] = x / sys[s, r, r]
+        for d in range(C):
+            acc = V(0.0)
+            for r in range(R):
+                acc += jac[s, r, d] * yv[s, r]
+            st[s, d] = ti.select(act, mp[s, d] * acc, st[s, d])
+        return ok
+
+    @ti.func
+    def freeze_outward(s, act, parent: ti.template(), kind: ti.template(), jmode: ti.template(), lo: ti.template(),
+                       hi: ti.template(), dof_start: ti.template()):
+        """dls.freeze_outward in the lanes act: freeze the free angle DOFs on a limit whose step points outward."""
+        n = V(0.0)
+        for j in range(parent.shape[0]):
+            if jmode[j] == 1:
+                for c in range(kind[j]):
+                    d = dof_start[j] + c
+                    t, u = th[s, d], st[s, d]
+                    out = act & (fr[s, d] > 0.0) & (((t <= lo[d] + LIMIT_EPS) & (u < 0.0))
+                                                     | ((t >= hi[d] - LIMIT_EPS) & (u > 0.0)))
+                    fr[s, d] = ti.select(out, 0.0, fr[s, d])
+                    n += ti.select(out, 1.0, 0.0)
+        return n
+
+    @ti.func
+    def kick_step(s, on, parent: ti.template(), kind: ti.template(), jmode: ti.template(), lo: ti.template(),
+                  hi: ti.template(), dof_start: ti.template(), joint_w: ti.template(), C):
+        """dls.kick_step in the lanes `on`: st moves every weighted angle DOF frozen on a limit inward; returns how
+        many per lane."""
+        n = V(0.0)
+        for d in range(C):
+            st[s, d] = ti.select(on, 0.0, st[s, d])
+        for j in range(parent.shape[0]):
+            if jmode[j] == 1:
+                for c in range(kind[j]):
+                    d = dof_start[j] + c
+                    size = ti.min(KICK, 0.5 * (hi[d] - lo[d]))
+                    if joint_w[d] > 0.0 and size > 0.0:
+                        t = th[s, d]
+                        frozen = on & (fr[s, d] == 0.0)
+                        low = frozen & (t <= lo[d] + LIMIT_EPS)
+                        high = frozen & (low == 0) & (t >= hi[d] - LIMIT_EPS)
+                        st[s, d] = ti.select(low, size, ti.select(high, -size, st[s, d]))
+                        n += ti.select(low | high, 1.0, 0.0)
+        return n
+
+    @ti.func
+    def restore(s, on, J, C):
+        """The pose before the step (thb, b*) back in the lanes `on`."""
+        for d in range(C):
+            th[s, d] = ti.select(on, thb[s, d], th[s, d])
+        for j in range(J):
+            lx[s, j], ly[s, j] = ti.select(on, bx[s, j], lx[s, j]), ti.select(on, by[s, j], ly[s, j])
+            lz[s, j], lw[s, j] = ti.select(on, bz[s, j], lz[s, j]), ti.select(on, bw[s, j], lw[s, j])
+
+    @ti.func
+    def save_or_back(s, save, back, J, C):
+        """The pose saved (ths, v*) in the lanes `save`, the saved pose back in the lanes `back` (never both)."""
+        for d in range(C):
+            t, u = th[s, d], ths[s, d]
+            ths[s, d] = ti.select(save, t, u)
+            th[s, d] = ti.select(back, u, t)
+        for j in range(J):
+            qx, qy, qz, qw = lx[s, j], ly[s, j], lz[s, j], lw[s, j]
+            sx, sy, sz, sw = vx[s, j], vy[s, j], vz[s, j], vw[s, j]
+            vx[s, j], vy[s, j], vz[s, j], vw[s, j] = ti.select(save, qx, sx), ti.select(save, qy, sy), \
+                ti.select(save, qz, sz), ti.select(save, qw, sw)
+            lx[s, j], ly[s, j], lz[s, j], lw[s, j] = ti.select(back, sx, qx), ti.select(back, sy, qy), \
+                ti.select(back, sz, qz), ti.select(back, sw, qw)
+
+    @ti.kernel
+    def solve(
+        parent: ndarray(dtype=ti.i32, ndim=1), offset: ndarray(dtype=vec3, ndim=1), kind: ndarray(dtype=ti.i32, ndim=1),
+        jmode: ndarray(dtype=ti.i32, ndim=1), axes: ndarray(dtype=vec3, ndim=2), lo: ndarray(ndim=1),
+        hi: ndarray(ndim=1), lim_p: ndarray(ndim=2), lim_h: ndarray(ndim=2), cone: ndarray(ndim=1),
+        dof_start: ndarray(dtype=ti.i32, ndim=1), child_start: ndarray(dtype=ti.i32, ndim=1),
+        child_list: ndarray(dtype=ti.i32, ndim=1), eff_joint: ndarray(dtype=ti.i32, ndim=1),
+        eff_axis: ndarray(dtype=vec3, ndim=1), eff_has_axis: ndarray(dtype=ti.i32, ndim=1), eff_lim: ndarray(ndim=2),
+        eff_rows: ndarray(dtype=ti.i32, ndim=1), joint_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
+        root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2), world_pos: ndarray(dtype=vec3, ndim=2),
+        world_rot: ndarray(dtype=vec4, ndim=2), targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2),
+        orient: ndarray(dtype=vec3, ndim=2), n_rows: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
+        tolerance: ti.f32, damping: ti.f32, length: ti.f32, error: ndarray(ndim=1),
+        iterations: ndarray(dtype=ti.i32, ndim=1), stalled: ndarray(dtype=ti.i32, ndim=1),
+    ):
+        """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0. Rig and settings
+        as there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout: 0 no rows (no character weights
+        the effector), 1 its 3 position rows, 2 also its 2 orientation rows; n_rows their total."""
+        N = root_pos.shape[0]
+        J = parent.shape[0]
+        E = eff_joint.shape[0]
+        C = joint_w.shape[0]
+        R = n_rows
+        max_attempts = 2 * max_iterations + 8
+        chunk = (N + n_streams - 1) // n_streams
+        stride = spread_stride(n_streams)
+        for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
+            if slot % stride != 0:
+                continue
+            s = slot // stride
+            nxt = s * chunk
+            end = ti.min(nxt + chunk, N)
+            cur = Vi(-1)  # each lane's character, -1 for none
+            live = V(0.0)
+            pending = V(1.0)  # lanes to hand their character's result out and take the next one
+            # dls_solve's per-character state, one lane each: (f, perr, oerr) the objective, (sf, sperr, soerr) and
+            # s_acc the pose saved before a kick
+            f, perr, oerr, sf, sperr, soerr = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
+            lam, accepted, attempts, bad, stop, failed = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
+            first, kick, esc, esc_left, escapes, s_acc = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
+            ref_f, ref_acc = V(0.0), V(0.0)
+            while pending.max() + live.max() > 0.0:
+                for l in range(L):
+                    if pending[l] > 0.0:
+                        i = cur[l]
+                        if i >= 0:
+                            error[i] = perr[l]
+                            iterations[i] = ti.cast(accepted[l], ti.i32)
+                            stalled[i] = ti.cast(stop[l], ti.i32)
+                            rp = root_pos[i]
+                            for j in range(J):
+                                local_rot[i, j] = vec4(lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l])
+                                world_pos[i, j] = rp + vec3(px[s, j][l], py[s, j][l], pz[s, j][l])
+                                world_rot[i, j] = vec4(rx[s, j][l], ry[s, j][l], rz[s, j][l], rw[s, j][l])
+                        cur[l] = -1
+                        live[l] = 0.0
+                        if nxt < end:  # take the stream's next character: dls.read_angles and a zero step
+                            i = nxt
+                            nxt += 1
+                            cur[l] = i
+                            live[l] = 1.0
+                            y = yaw_quat(root_yaw[i])
+                            qy0[s][l], qy1[s][l], qy2[s][l], qy3[s][l] = y.x, y.y, y.z, y.w
+                            for d in range(C):
+                                th[s, d][l] = 0.0
+                                st[s, d][l] = 0.0
+                            for j in range(J):
+                                q = local_rot[i, j]
+                                g = world_rot[i, j]
+                                lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l] = q.x, q.y, q.z, q.w
+                                rx[s, j][l], ry[s, j][l], rz[s, j][l], rw[s, j][l] = g.x, g.y, g.z, g.w
+                                k = kind[j]
+                                if jmode[j] == 1:
+                                    a = joint_angles(k, axes[j, 0], axes[j, 1], q)
+                                    for c in range(k):
+                                        th[s, dof_start[j] + c][l] = a[c]
+                            rp = root_pos[i]
+                            for e in range(E):
+                                t = targets[i, e] - rp
+                                o = orient[i, e]
+                                tx[s, e][l], ty[s, e][l], tz[s, e][l], tw[s, e][l] = t.x, t.y, t.z, weights[i, e]
+                                ox[s, e][l], oy[s, e][l], oz[s, e][l] = o.x, o.y, o.z
+                            f[l], perr[l], oerr[l], lam[l], accepted[l], attempts[l] = 0.0, 0.0, 0.0, damping, 0.0, 0.0
+                            bad[l], stop[l], failed[l], first[l], kick[l], esc[l] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
+                            esc_left[l], escapes[l], ref_f[l], ref_acc[l] = 0.0, 0.0, 0.0, 0.0
+                pending = V(0.0)
+                if live.max() > 0.0:
+                    go = live > 0.0
+                    apply_step(s, go, parent, offset, kind, jmode, axes, lo, hi, lim_p, lim_h, cone, dof_start,
+                               child_start, child_list, C)
+                    nf, npe, noe = objective(s, eff_joint, eff_axis, eff_has_axis, eff_lim, length)
+                    fst = go & (first > 0.0)
+                    kck = go & (first == 0.0) & (kick > 0.0)
+                    nrm = go & (first == 0.0) & (kick == 0.0)
+                    acc = nrm & (nf < f) & (failed == 0.0)
+                    rej = nrm & (acc == 0)
+                    flat = f - nf < FLAT * f
+                    take = fst | kck | acc
+                    f, perr, oerr = ti.select(take, nf, f), ti.select(take, npe, perr), ti.select(take, noe, oerr)
+                    first = ti.select(fst, 0.0, first)
+                    accepted = ti.select(kck | acc, accepted + 1.0, accepted)
+                    lam = ti.select(kck, damping, ti.select(acc, ti.max(0.5 * lam, damping),
+                                                            ti.select(rej, 4.0 * lam, lam)))
+                    bad = ti.select(kck, 0.0, ti.select(acc & (flat == 0), 0.0, ti.select(acc | rej, bad + 1.0, bad)))
+                    kick = ti.select(kck, 0.0, kick)
+                    esc_left = ti.select(kck, ESCAPES_F, esc_left)
+                    esc = ti.select(kck, 1.0, esc)
+                    win = acc & (accepted - ref_acc >= WINDOW)  # too slow: F fell by less than PROGRESS
+                    bad = ti.select(win & (f > (1.0 - PROGRESS) * ref_f), STALL_F, bad)
+                    ref_f = ti.select(fst | kck | win, f, ref_f)
+                    ref_acc = ti.select(kck | win, accepted, ref_acc)
+                    if lm.any_lane(rej):
+                        restore(s, rej, J, C)
+                    ec = nrm & (esc > 0.0)  # on probation: kept once it beats the pose before the kick
+                    esc = ti.select(ec & ((f < sf) | ((perr <= tolerance) & (oerr <= tolerance))), 0.0, esc)
+                    esc_left = ti.select(ec, esc_left - 1.0, esc_left)
+                    stall = go & ((bad >= STALL_AFTER) | (lam > LAM_CAP * length))
+                    stop = ti.select(stall, 1.0, stop)
+                    back = stall & (esc > 0.0)
+                    try_kick = stall & (esc == 0.0) & (escapes < MAX_ESCAPES)
+                    kicked = try_kick & (try_kick == 0)
+                    if lm.any_lane(try_kick):
+                        kicked = try_kick & (kick_step(s, try_kick, parent, kind, jmode, lo, hi, dof_start, joint_w,
+                                                       C) > 0.0)
+                    sf, sperr, soerr = ti.select(kicked, f, sf), ti.select(kicked, perr, sperr), \
+                        ti.select(kicked, oerr, soerr)
+                    s_acc = ti.select(kicked, accepted, s_acc)
+                    kick = ti.select(kicked, 1.0, kick)
+                    escapes = ti.select(kicked, escapes + 1.0, escapes)
+                    bad = ti.select(kicked, 0.0, bad)
+                    lam = ti.select(kicked, damping, lam)
+                    stop = ti.select(kicked, 0.0, stop)
+                    late = go & (esc > 0.0) & (esc_left <= 0.0) & (back == 0)
+                    stop = ti.select(late, 1.0, stop)
+                    back = back | late
+                    converged = (perr <= tolerance) & (oerr <= tolerance)
+                    cont = go & (accepted < max_iterations) & (attempts < max_attempts) & (stop == 0.0) & \
+                        (converged == 0)
+                    back = back | (go & (cont == 0) & (esc > 0.0))
+                    if lm.any_lane(kicked | back):
+                        save_or_back(s, kicked, back, J, C)
+                    f, perr, oerr = ti.select(back, sf, f), ti.select(back, sperr, perr), ti.select(back, soerr, oerr)
+                    accepted = ti.select(back, s_acc, accepted)
+                    esc = ti.select(back, 0.0, esc)
+                    ref_f = ti.select(back, f, ref_f)
+                    ref_acc = ti.select(back, accepted, ref_acc)
+                    if lm.any_lane(rej | back):
+                        fk(s, rej | back, parent, offset)
+                    # attempts ran out: too many rejected steps
+                    stop = ti.select(go & (cont == 0) & (stop == 0.0) & (accepted < max_iterations)
+                                     & ((perr > tolerance) | (oerr > tolerance)), 1.0, stop)
+                    attempts = ti.select(cont, attempts + 1.0, attempts)
+                    building = cont & (kick == 0.0)
+                    if lm.any_lane(building):
+                        build(s, parent, kind, jmode, axes, dof_start, eff_joint, eff_axis, eff_lim, eff_rows, length,
+                              R, C)
+                        for d in range(C):
+                            fr[s, d] = ti.select(building, 1.0, fr[s, d])
+                        failed = ti.select(building, 0.0, failed)
+                        frozen = ti.select(building, 1.0, 0.0)
+                        rounds = 0
+                        while frozen.max() > 0.0 and rounds <= C:
+                            act = frozen > 0.0
+                            ok = solve_step(s, act, lam * lam, joint_w, R, C)
+                            failed = ti.select(act, 1.0 - ok, failed)
+                            frozen = ti.select(act, freeze_outward(s, act, parent, kind, jmode, lo, hi, dof_start), 0.0)
+                            rounds += 1
+                        for d in range(C):
+                            st[s, d] = ti.select(building & (failed > 0.0), 0.0, st[s, d])
+                    done = go & (cont == 0)
+                    pending = ti.select(done, 1.0, 0.0)
+                    live = ti.select(done, 0.0, live)
+
+    return solve
