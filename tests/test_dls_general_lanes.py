@@ -1,0 +1,179 @@
+"""The general DLS as SIMD lanes (kernels/dls_general_lanes.py, solvers/dls.py): what the one-character kernel
+(kernels/dls.py) and the float64 NumPy twin give, for every lane, a character alone or among other lane-mates, the
+request's row layout, and the dispatch only where the lanes reproduce the request."""
+
+import numpy as np
+import pytest
+
+import crowd_ik as cik
+from crowd_ik.reference.dls import dls_solve
+from crowd_ik.solvers import dls as adapter
+from crowd_ik.solvers import settings
+from rig_cases import free_tree
+
+
+@pytest.fixture(autouse=True)
+def lanes_only():
+    if settings.general_lanes() <= 1:  # CUDA, or switched off: the one-character kernel everywhere
+        pytest.skip("general DLS lanes off")
+
+
+def cone_arm():
+    """Limits of every kind the kernel handles: a ball joint with a cone solved on its quaternion, one with a box and
+    a cone solved in its Euler angles, a hinge, a universal joint; two effectors, the hand with an axis."""
+    J = cik.Joint
+    return cik.Rig(
+        (J("root", -1, (0, 0, 0)), J("shoulder", 0, (0, 0.3, 0), cone=0.7),
+         J("upper", 1, (0, 0.3, 0), lo=(-0.8, -0.6, -0.5), hi=(0.8, 0.6, 0.5), cone=0.6),
+         J("elbow", 2, (0, 0.3, 0), kind="hinge", lo=(0.0,), hi=(2.4,)),
+         J("wrist", 3, (0, 0.2, 0), kind="universal", lo=(-0.9, -0.4), hi=(0.9, 0.4)),
+         J("hand", 4, (0, 0.1, 0)), J("side", 1, (0.25, 0.1, 0))),
+        (cik.Effector("hand", 5, axis=(0.0, 1.0, 0.0)), cik.Effector("side", 6)))
+
+
+RIGS = {"humanoid": cik.Rig.humanoid, "tree": free_tree, "arm": cone_arm}
+
+
+def _case(rig, n, seed):
+    """n characters, turned roots, a start pose off rest, targets near and out of reach, unequal weights per
+    character (some weight an effector zero: zero rows in their lanes), orientation targets for some (zero axis
+    rows for the others)."""
+    rng = np.random.default_rng(seed)
+    crowd = cik.Crowd(rig, n=n, spacing=2.0)
+    roots, _ = crowd.roots()
+    crowd.set_roots(roots, yaw=rng.uniform(-3, 3, n).astype(np.float32))
+    crowd.set_angles(rng.normal(size=(n, rig.n_dof)).astype(np.float32) * 0.2)
+    targets = crowd.effector_positions() + rng.normal(size=(n, rig.n_effectors, 3)).astype(np.float32) * 0.15
+    targets[0] = crowd.effector_positions()[0]  # already there, but for the start pose's projection onto the limits
+    targets[1::5, 0] += np.float32(2.0)  # out of reach
+    weights = rng.uniform(0.5, 2.0, (n, rig.n_effectors)).astype(np.float32)
+    weights[2::4, -1] = 0.0
+    orient = None
+    if rig.arrays["eff_has_axis"].any():
+        orient = np.zeros((n, rig.n_effectors, 3), np.float32)
+        axis = rng.normal(size=(n, 3)).astype(np.float32)
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        has = np.flatnonzero(rig.arrays["eff_has_axis"])
+        orient[::2, has] = axis[::2, None]
+        orient[0] = 0.0
+    return crowd, targets, weights, orient
+
+
+def _solve(crowd, targets, weights, orient, iterations):
+    return crowd.solve(targets, method="dls", weights=weights, orientations=orient, max_iterations=iterations,
+                       tolerance=1e-3)
+
+
+def _both(monkeypatch, rig, n, seed, iterations):
+    out = []
+    for lanes in (True, False):
+        monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
+        crowd, targets, weights, orient = _case(rig, n, seed)
+        rep = _solve(crowd, targets, weights, orient, iterations)
+        out.append((rep, crowd.joint_positions(), crowd.rotations(), crowd))
+    monkeypatch.undo()
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(RIGS))
+def test_lanes_match_the_one_character_kernel(monkeypatch, name):
+    """Short solves (LM rejections, the active set, limits): the same statuses, iteration counts and poses within
+    1e-4 m for nearly all (float32 rounding in another order and the polynomial trigonometry), a character whose
+    targets its start pose meets the same, and the written positions FK of the written rotations."""
+    rig = RIGS[name]()
+    n = 12 * settings.general_lanes() + 3  # a partial last packet
+    (a, pa, qa, crowd), (b, pb, qb, _) = _both(monkeypatch, rig, n, seed=3, iterations=8)
+    assert a.iterations.max() > 2
+    assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
+    assert a.iterations[0] == b.iterations[0] <= 1 and np.allclose(qa[0], qb[0], atol=1e-5)
+    d = np.abs(pa - pb).max(axis=(1, 2))
+    assert np.mean(d <= 1e-4) >= 0.95, np.sort(d)[-4:]
+    crowd.set_rotations(qa)
+    np.testing.assert_allclose(crowd.joint_positions(), pa, atol=2e-6)
+
+
+def test_lanes_stay_as_close_to_the_twin_as_the_kernel(monkeypatch):
+    """The bench's humanoid (random poses, 100 iterations, most targets out of reach): against the float64 twin the
+    lanes agree as often as the one-character kernel does (long stalled solves amplify rounding either way), the
+    same characters converge, and those that converge in both end within 1e-3 m."""
+    from crowd_ik.bench import workloads as w
+
+    wl = w.make_workload("humanoid", 48)
+    runs = []
+    for lanes in (True, False):
+        monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
+        crowd = cik.Crowd(wl.rig, wl.n, spacing=w.SPACING)
+        crowd.set_angles(wl.angles)
+        roots, yaw, rot0 = *crowd.roots(), crowd.rotations()
+        rep = crowd.solve(wl.targets, method="dls", max_iterations=wl.max_iterations, tolerance=wl.tolerance)
+        runs.append((rep, crowd.joint_positions()))
+    monkeypatch.undo()
+    twin = dls_solve(wl.rig, roots, yaw, rot0, wl.targets, max_iterations=wl.max_iterations,
+                     tolerance=wl.tolerance)
+    (a, pa), (b, pb) = runs
+    agree = [np.mean(r.iterations == twin[3]) for r, _ in runs]
+    assert agree[0] >= agree[1] - 0.1, agree
+    assert np.mean(a.status == b.status) >= 0.95
+    ok = (a.status == 0) & (b.status == 0) & (twin[2] <= wl.tolerance)
+    assert ok.sum() >= 3
+    np.testing.assert_allclose(pa[ok], twin[1][ok], atol=1e-3)
+
+
+@pytest.mark.parametrize("name", ["humanoid", "arm"])
+def test_a_character_does_not_depend_on_its_lane_mates(name):
+    """Reordered, every character's pose bit for bit; alone in a padded packet the same statuses and iteration
+    counts, and bit for bit where its own row layout is the crowd's."""
+    rig = RIGS[name]()
+    n = 2 * settings.general_lanes() + 3
+    crowd, targets, weights, orient = _case(rig, n, seed=7)
+    start, (roots, yaw) = crowd.rotations(), crowd.roots()
+    crowd.set_rotations(start)
+    rep = _solve(crowd, targets, weights, orient, 12)
+    pos = crowd.joint_positions()
+    order = np.roll(np.arange(n), 5)
+    other = cik.Crowd(rig, n=n, spacing=2.0)
+    other.set_roots(roots[order], yaw[order])
+    other.set_rotations(start[order])
+    got = _solve(other, targets[order], weights[order], None if orient is None else orient[order], 12)
+    np.testing.assert_array_equal(got.iterations, rep.iterations[order])
+    np.testing.assert_array_equal(other.joint_positions(), pos[order])
+    for i in (4, 2, 3):
+        # 4 weights every effector and has an orientation target: alone it has the crowd's row layout, bit for bit;
+        # 2 (a zero weight) and 3 (no orientation target) alone have fewer rows, whose Cholesky sums fast math
+        # groups otherwise: the same statuses and iterations, rounding apart
+        one = cik.Crowd(rig, n=1)
+        one.set_roots(roots[i:i + 1], yaw[i:i + 1])
+        one.set_rotations(start[i:i + 1])
+        r1 = _solve(one, targets[i:i + 1], weights[i:i + 1], None if orient is None else orient[i:i + 1], 12)
+        assert r1.iterations[0] == rep.iterations[i] and r1.status[0] == rep.status[i]
+        np.testing.assert_allclose(one.joint_positions()[0], pos[i], atol=0.0 if i == 4 else 1e-5)
+
+
+def test_row_layout():
+    """3 rows for an effector some character weights, 2 more where one of those also gives it an orientation target
+    and the rig has its axis; none for an effector nobody weights."""
+    rig = cone_arm()
+    weights = np.array([[1.0, 0.0], [0.5, 0.0]], np.float32)
+    np.testing.assert_array_equal(adapter.row_layout(rig, weights, None), [1, 0])
+    orient = np.zeros((2, 2, 3), np.float32)
+    orient[1, 0] = (0, 1, 0)
+    np.testing.assert_array_equal(adapter.row_layout(rig, weights, orient), [2, 0])
+    weights[1, 0] = 0.0  # the one with the orientation target weights nothing: no axis rows
+    np.testing.assert_array_equal(adapter.row_layout(rig, weights, orient), [1, 0])
+
+
+def test_lanes_only_for_requests_without_the_extra_terms(monkeypatch):
+    """Plain requests (limits, orientation targets, per-character weights) take the lanes; rest, velocity or balance
+    terms, rotation targets and a free root keep the one-character kernel."""
+    calls = []
+    real = adapter._general_lanes
+    monkeypatch.setattr(adapter, "_general_lanes", lambda *a: calls.append(1) or real(*a))
+    crowd, targets, weights, orient = _case(cik.Rig.humanoid(), 5, seed=1)
+    _solve(crowd, targets, weights, orient, 2)
+    assert len(calls) == 1
+    crowd.solve(targets, method="dls", max_iterations=2, rest_weight=0.01)
+    rots = np.zeros((5, crowd.rig.n_effectors, 4), np.float32)
+    rots[..., 3] = 1.0
+    crowd.solve(targets, method="dls", max_iterations=2, rotations=rots)
+    crowd.solve(targets, method="dls", max_iterations=2, root_weight=1.0)
+    assert len(calls) == 1
