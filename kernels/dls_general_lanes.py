@@ -14,7 +14,8 @@ The rows are laid out by the request, the same for every lane (``eff_rows``: 3 r
 character weights, 2 more where some character also gives it an orientation target): a lane that does not weight
 an effector, or gives it no orientation target, has zero rows there. A zero row of J adds a row and column of
 J W J^T + lam^2 I that are zero off the diagonal, so its Cholesky factor, back substitution and step are those of
-the one-character kernel's compacted system plus exact zeros. A character's start (its angles from its rotations)
+the one-character kernel's compacted system plus zero terms (the same numbers up to how fast math groups the sums,
+whose lengths the zero rows change). A character's start (its angles from its rotations)
 and its result are handled one lane at a time with the one-character kernel's scalar code.
 """
 
@@ -225,8 +226,10 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                 jac[s, r + 1, d0 + c] = sw * qy
                                 jac[s, r + 2, d0 + c] = sw * qz
                                 if eff_rows[e] == 2:
-                                    jac[s, r + 3, d0 + c] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z), 0.0)
-                                    jac[s, r + 4, d0 + c] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z), 0.0)
+                                    a1 = sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z)
+                                    a2 = sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z)
+                                    jac[s, r + 3, d0 + c] = ti.select(ori, a1, 0.0)
+                                    jac[s, r + 4, d0 + c] = ti.select(ori, a2, 0.0)
                     n = parent[n]
                 r += 3
                 if eff_rows[e] == 2:
