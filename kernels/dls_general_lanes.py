@@ -56,6 +56,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
      rx, ry, rz, rw) = lane_rows(L, (S, max_joints), 19)
     th, thb, ths, st, fr, mp = lane_rows(L, (S, max_cols), 6)
     e0, yv = lane_rows(L, (S, max_rows), 2)
+    (ga,) = lane_rows(L, (S, max_cols), 1)
     (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
     (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
     tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
@@ -233,22 +234,51 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     n = parent[n]
                 r += 3
                 if eff_rows[e] == 2:
-                    r += 2
+                    r += 3  # the axis rows and a zero row: blocks of three rows
 
     @ti.func
-    def solve_step(s, act, lam2, joint_w: ti.template(), R, C):
+    def solve_step(s, act, lam2, joint_w: ti.template(), grp_eff: ti.template(), run_count: ti.template(),
+                   runs: ti.template(), G, C):
         """dls_system.solve_step without secondary terms, per lane: st = W J^T (J W J^T + lam^2 I)^-1 e0 in the lanes
-        act (W = joint weight times fr); returns 1 per lane, 0 where the float32 Cholesky failed."""
+        act (W = joint weight times fr); returns 1 per lane, 0 where the float32 Cholesky failed. The R = 3 G rows are
+        G blocks of three, each one effector's (grp_eff); J W J^T is built a pair of blocks at a time over the runs
+        of columns both effectors move (runs), and J^T y a block at a time over its effector's runs: the other terms
+        are zero, and each sum takes its terms in the same order."""
+        R = 3 * G
         for d in range(C):
             mp[s, d] = joint_w[d] * fr[s, d]
-        for r in range(R):  # dls_system.factor
-            for c in range(r + 1):
-                acc = V(0.0)
-                for d in range(C):
-                    acc += jac[s, r, d] * mp[s, d] * jac[s, c, d]
-                if r == c:
-                    acc += lam2
-                sys[s, r, c] = acc
+            ga[s, d] = V(0.0)
+        for g in range(G):  # dls_system.factor's products
+            for h in range(g + 1):
+                a, b = grp_eff[g], grp_eff[h]
+                r, c = 3 * g, 3 * h
+                a00, a01, a02, a10, a11, a12, a20, a21, a22 = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), \
+                    V(0.0), V(0.0), V(0.0)
+                for q in range(run_count[a, b]):
+                    for d in range(runs[a, b, q, 0], runs[a, b, q, 1]):
+                        m = mp[s, d]
+                        t0, t1, t2 = jac[s, r, d] * m, jac[s, r + 1, d] * m, jac[s, r + 2, d] * m
+                        b0, b1, b2 = jac[s, c, d], jac[s, c + 1, d], jac[s, c + 2, d]
+                        a00 += t0 * b0
+                        a01 += t0 * b1
+                        a02 += t0 * b2
+                        a10 += t1 * b0
+                        a11 += t1 * b1
+                        a12 += t1 * b2
+                        a20 += t2 * b0
+                        a21 += t2 * b1
+                        a22 += t2 * b2
+                if g == h:
+                    sys[s, r, c] = a00 + lam2
+                    sys[s, r + 1, c] = a10
+                    sys[s, r + 1, c + 1] = a11 + lam2
+                    sys[s, r + 2, c] = a20
+                    sys[s, r + 2, c + 1] = a21
+                    sys[s, r + 2, c + 2] = a22 + lam2
+                else:
+                    sys[s, r, c], sys[s, r, c + 1], sys[s, r, c + 2] = a00, a01, a02
+                    sys[s, r + 1, c], sys[s, r + 1, c + 1], sys[s, r + 1, c + 2] = a10, a11, a12
+                    sys[s, r + 2, c], sys[s, r + 2, c + 1], sys[s, r + 2, c + 2] = a20, a21, a22
         ok = V(1.0)
         for c in range(R):
             v = sys[s, c, c]
@@ -274,11 +304,15 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             for k in range(r + 1, R):
                 x -= sys[s, k, r] * yv[s, k]
             yv[s, r] = x / sys[s, r, r]
+        for g in range(G):  # J^T y, each column's sum over the blocks in row order
+            a = grp_eff[g]
+            r = 3 * g
+            y0, y1, y2 = yv[s, r], yv[s, r + 1], yv[s, r + 2]
+            for q in range(run_count[a, a]):
+                for d in range(runs[a, a, q, 0], runs[a, a, q, 1]):
+                    ga[s, d] = ga[s, d] + jac[s, r, d] * y0 + jac[s, r + 1, d] * y1 + jac[s, r + 2, d] * y2
         for d in range(C):
-            acc = V(0.0)
-            for r in range(R):
-                acc += jac[s, r, d] * yv[s, r]
-            st[s, d] = ti.select(act, mp[s, d] * acc, st[s, d])
+            st[s, d] = ti.select(act, mp[s, d] * ga[s, d], st[s, d])
         return ok
 
     @ti.func
@@ -351,21 +385,26 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         dof_start: ndarray(dtype=ti.i32, ndim=1), child_start: ndarray(dtype=ti.i32, ndim=1),
         child_list: ndarray(dtype=ti.i32, ndim=1), eff_joint: ndarray(dtype=ti.i32, ndim=1),
         eff_axis: ndarray(dtype=vec3, ndim=1), eff_has_axis: ndarray(dtype=ti.i32, ndim=1), eff_lim: ndarray(ndim=2),
-        eff_rows: ndarray(dtype=ti.i32, ndim=1), joint_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
+        eff_rows: ndarray(dtype=ti.i32, ndim=1), grp_eff: ndarray(dtype=ti.i32, ndim=1),
+        run_count: ndarray(dtype=ti.i32, ndim=2), runs: ndarray(dtype=ti.i32, ndim=4),
+        joint_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
         root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2), world_pos: ndarray(dtype=vec3, ndim=2),
         world_rot: ndarray(dtype=vec4, ndim=2), targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2),
-        orient: ndarray(dtype=vec3, ndim=2), n_rows: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
+        orient: ndarray(dtype=vec3, ndim=2), n_groups: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
         tolerance: ti.f32, damping: ti.f32, length: ti.f32, error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1), stalled: ndarray(dtype=ti.i32, ndim=1),
     ):
         """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0. Rig and settings
         as there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout: 0 no rows (no character weights
-        the effector), 1 its 3 position rows, 2 also its 2 orientation rows; n_rows their total."""
+        the effector), 1 its 3 position rows, 2 also its 2 orientation rows and a zero row; n_groups = R / 3 blocks of
+        three rows, grp_eff (n_groups,) each block's effector; run_count (E, E), runs (E, E, K, 2) the runs [start,
+        end) of DOF columns two effectors' paths share (solvers/dls.shared_runs)."""
         N = root_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
         C = joint_w.shape[0]
-        R = n_rows
+        G = n_groups
+        R = 3 * G
         max_attempts = 2 * max_iterations + 8
         chunk = (N + n_streams - 1) // n_streams
         stride = spread_stride(n_streams)
@@ -506,7 +545,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                         rounds = 0
                         while frozen.max() > 0.0 and rounds <= C:
                             act = frozen > 0.0
-                            ok = solve_step(s, act, lam * lam, joint_w, R, C)
+                            ok = solve_step(s, act, lam * lam, joint_w, grp_eff, run_count, runs, G, C)
                             failed = ti.select(act, 1.0 - ok, failed)
                             frozen = ti.select(act, freeze_outward(s, act, parent, kind, jmode, lo, hi, dof_start), 0.0)
                             rounds += 1

@@ -162,6 +162,16 @@ def test_row_layout():
     np.testing.assert_array_equal(adapter.row_layout(rig, weights, orient), [1, 0])
 
 
+def test_blocks_and_shared_column_runs():
+    """The system's blocks of three rows (an effector with axis rows has two) and, per pair of effectors, the runs of
+    DOF columns both move: the arm's hand moves columns 0-14 (root, shoulder, upper arm, elbow, wrist, hand), its side
+    effector 0-5 and 15-17."""
+    np.testing.assert_array_equal(adapter.row_groups(np.array([2, 0, 1])), [0, 0, 2])
+    count, runs = adapter.shared_runs(cone_arm())
+    got = {(a, b): [tuple(r) for r in runs[a, b, : count[a, b]]] for a in range(2) for b in range(2)}
+    assert got == {(0, 0): [(0, 15)], (0, 1): [(0, 6)], (1, 0): [(0, 6)], (1, 1): [(0, 6), (15, 18)]}
+
+
 def test_lanes_only_for_requests_without_the_extra_terms(monkeypatch):
     """Plain requests (limits, orientation targets, per-character weights) take the lanes; rest, velocity or balance
     terms, rotation targets and a free root keep the one-character kernel."""

@@ -103,29 +103,64 @@ def row_layout(rig, weights: np.ndarray, orient: np.ndarray | None) -> np.ndarra
     return rows
 
 
+def shared_runs(rig) -> tuple[np.ndarray, np.ndarray]:
+    """(count (E, E) int32, runs (E, E, K, 2) int32): per pair of effectors the runs [start, end) of consecutive DOF
+    columns on both of their paths to the root, ascending (the only columns where both effectors' Jacobian rows can
+    be nonzero; a pair's own runs are the columns the effector moves)."""
+    E, kind, start = rig.n_effectors, rig.arrays["kind"], rig.arrays["dof_start"]
+    on = np.zeros((E, max(rig.n_dof, 1) + 1), bool)
+    for e, eff in enumerate(rig.effectors):
+        for j in rig.path_to_root(eff.joint):
+            on[e, start[j] : start[j] + kind[j]] = True
+    found = {}
+    for a in range(E):
+        for b in range(E):
+            both = np.concatenate([[False], on[a] & on[b], [False]]).astype(np.int8)
+            edges = np.flatnonzero(np.diff(both))  # starts and ends alternate
+            found[a, b] = edges.reshape(-1, 2)
+    count = np.zeros((E, E), np.int32)
+    runs = np.zeros((E, E, max(1, max(len(r) for r in found.values())), 2), np.int32)
+    for (a, b), r in found.items():
+        count[a, b] = len(r)
+        runs[a, b, : len(r)] = r
+    return count, runs
+
+
+def row_groups(layout: np.ndarray) -> np.ndarray:
+    """(G,) int32: the effector of each block of three rows of the general lanes' system, in row order (an effector
+    with axis rows has two blocks: its position rows, then its 2 axis rows and a zero row)."""
+    return np.repeat(np.arange(len(layout), dtype=np.int32), layout)
+
+
 def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     """kernels/dls_general_lanes.py: the general solve without its extra terms, characters as SIMD lanes."""
     from crowd_ik.kernels import dls_general_lanes, lane_plan
 
-    ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
+    ra, rig, b, ti = crowd.rig_arrays, crowd.rig, crowd.buffers, crowd.ti
     layout = row_layout(rig, b.weights, None if b.orient_zero else b.orient)
+    groups = row_groups(layout)
     kept = crowd.__dict__.setdefault("_dls_row_layouts", {})
     key = layout.tobytes()
-    if key not in kept:  # uploaded once per layout
-        kept[key] = crowd.scratch(f"dls_rows_{len(kept)}", crowd.ti.i32, (rig.n_effectors,))
-        kept[key].from_numpy(layout)
+    if crowd._scratch.get("dls_run_count") is None:  # once per crowd
+        for name, value in zip(("dls_run_count", "dls_runs"), shared_runs(rig)):
+            crowd.scratch(name, ti.i32, value.shape).from_numpy(value)
+    if key not in kept:  # uploaded once per layout, with each block's effector
+        kept[key] = (crowd.scratch(f"dls_rows_{len(kept)}", ti.i32, layout.shape),
+                     crowd.scratch(f"dls_groups_{len(kept)}", ti.i32, (max(len(groups), 1),)))
+        kept[key][0].from_numpy(layout)
+        kept[key][1].from_numpy(np.resize(groups, max(len(groups), 1)))
     L = settings.general_lanes()
-    n_rows = int(3 * np.count_nonzero(layout) + 2 * np.count_nonzero(layout == 2))
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
-    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints), cap(C), cap(max(5 * rig.n_effectors, 1)),
+    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints), cap(C), cap(max(6 * rig.n_effectors, 1)),
                                               cap(rig.n_effectors))
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], kept[key], small["joint_w"], *bundles.pose(crowd),
-        *bundles.goal(crowd), n_rows, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance,
-        cfg["damping"], cfg["length"], *bundles.result(crowd),
+        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch["dls_run_count"],
+        crowd._scratch["dls_runs"], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd), len(groups),
+        lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
+        *bundles.result(crowd),
     )
 
 
