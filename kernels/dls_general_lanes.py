@@ -48,7 +48,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
     save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr); the system's jac (rows x
     columns), sys (its Cholesky factor), e0 (the aimed error), y (the solution); per effector t* (target relative to
-    the root, weight), o* (orientation target); y* the root's yaw rotation."""
+    the root, weight), o* (orientation target). Joint row J (max_joints > J) holds the root's yaw rotation at the
+    origin, the parent row of the root joint."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     S = MAX_STREAMS
@@ -60,29 +61,31 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
     (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
     tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
-    qy0, qy1, qy2, qy3 = lane_rows(L, (S,), 4)
+
+    @ti.func
+    def parent_row(j, parent: ti.template()):
+        """The row of joint j's parent, or J (one past the joints: the root's yaw rotation at the origin), so that a
+        parent's rotation is one vector load per component wherever it comes from."""
+        p = parent[j]
+        if p < 0:
+            p = parent.shape[0]
+        return p
 
     @ti.func
     def parent_rot(s, j, parent: ti.template()):
         """dls_pose.parent_rot: the parent's world rotation, or the root's yaw."""
-        ax, ay, az, aw = qy0[s], qy1[s], qy2[s], qy3[s]
-        p = parent[j]
-        if p >= 0:
-            ax, ay, az, aw = rx[s, p], ry[s, p], rz[s, p], rw[s, p]
-        return ax, ay, az, aw
+        p = parent_row(j, parent)
+        return rx[s, p], ry[s, p], rz[s, p], rw[s, p]
 
     @ti.func
     def fk(s, on, parent: ti.template(), offset: ti.template()):
         """dls_pose.fk_relative in the lanes `on`."""
         for j in range(parent.shape[0]):
             o = offset[j]
-            ax, ay, az, aw = parent_rot(s, j, parent)
+            p = parent_row(j, parent)
+            ax, ay, az, aw = rx[s, p], ry[s, p], rz[s, p], rw[s, p]
             cx, cy, cz = lm.qrot(ax, ay, az, aw, o.x, o.y, o.z)
-            p = parent[j]
-            if p >= 0:
-                cx, cy, cz = px[s, p] + cx, py[s, p] + cy, pz[s, p] + cz
-            else:
-                cx, cy, cz = 0.0 + cx, 0.0 + cy, 0.0 + cz
+            cx, cy, cz = px[s, p] + cx, py[s, p] + cy, pz[s, p] + cz  # the root row's position is 0
             gx, gy, gz, gw = lm.qmul(ax, ay, az, aw, lx[s, j], ly[s, j], lz[s, j], lw[s, j])
             px[s, j], py[s, j], pz[s, j] = ti.select(on, cx, px[s, j]), ti.select(on, cy, py[s, j]), \
                 ti.select(on, cz, pz[s, j])
@@ -444,7 +447,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                             cur[l] = i
                             live[l] = 1.0
                             y = yaw_quat(root_yaw[i])
-                            qy0[s][l], qy1[s][l], qy2[s][l], qy3[s][l] = y.x, y.y, y.z, y.w
+                            rx[s, J][l], ry[s, J][l], rz[s, J][l], rw[s, J][l] = y.x, y.y, y.z, y.w
+                            px[s, J][l], py[s, J][l], pz[s, J][l] = 0.0, 0.0, 0.0
                             for d in range(C):
                                 th[s, d][l] = 0.0
                                 st[s, d][l] = 0.0

@@ -152,7 +152,7 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     L = settings.general_lanes()
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
-    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints), cap(C), cap(max(6 * rig.n_effectors, 1)),
+    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max(6 * rig.n_effectors, 1)),
                                               cap(rig.n_effectors))
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
