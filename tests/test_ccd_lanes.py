@@ -84,6 +84,35 @@ def test_lanes_match_the_twin_on_chain16():
     assert np.all(rep.status[rep.error <= wl.tolerance] == Status.CONVERGED)
 
 
+def test_limited_lanes_stay_as_close_to_the_twin_as_the_kernel(monkeypatch):
+    """The bench's humanoid (random poses, 100 sweeps, most targets out of reach): against the float64 twin the limited
+    lanes agree as often as the one-character kernel does (long stalled solves amplify float32 rounding either way:
+    1,000 characters, iterations 98.3 % against 98.4 %, poses within 1e-4 m 97.4 % for both), the statuses match the
+    kernel's, and the characters that converge end within 1e-3 m of the twin."""
+    if settings.limited_lanes() <= 1:
+        pytest.skip("limited lanes off")
+    from crowd_ik.bench import workloads as w
+
+    wl = w.make_workload("humanoid", 100)
+    runs = []
+    for lanes in (True, False):
+        monkeypatch.setattr(adapter, "lane_weights", adapter.lane_weights if lanes else (lambda crowd, req: None))
+        crowd = cik.Crowd(wl.rig, wl.n, spacing=w.SPACING)
+        crowd.set_angles(wl.angles)
+        roots, yaw, rot0 = *crowd.roots(), crowd.rotations()
+        rep = crowd.solve(wl.targets, method="ccd", max_iterations=wl.max_iterations, tolerance=wl.tolerance)
+        runs.append((rep, crowd.joint_positions()))
+    monkeypatch.undo()
+    twin = ccd_solve(wl.rig, roots, yaw, rot0, wl.targets, max_iterations=wl.max_iterations, tolerance=wl.tolerance)
+    (a, pa), (b, pb) = runs
+    agree = [np.mean(r.iterations == twin["iterations"]) for r, _ in runs]
+    assert agree[0] >= agree[1] - 0.05, agree
+    assert np.mean(a.status == b.status) >= 0.95
+    ok = (a.status == Status.CONVERGED) & (twin["iterations"] == a.iterations)
+    assert ok.any()
+    np.testing.assert_allclose(pa[ok], twin["pos"][ok], atol=1e-3)
+
+
 @pytest.mark.parametrize("name", sorted(RIGS))
 def test_a_character_does_not_depend_on_its_lane_mates(name):
     """Alone in a padded packet, or in a crowd solved in another order: every character's pose bit for bit."""
@@ -178,8 +207,8 @@ def test_limited_lanes_keep_the_characters_apart():
 
 def test_lanes_only_where_they_reproduce_the_request(monkeypatch):
     """Requests whose characters weight the same effectors (or none) take the lanes (a limited rig or orientation
-    targets up to settings.CCD_LIMITED_MAX_SWEEPS sweeps); per-character weight patterns and rotation targets take
-    the one-character kernel."""
+    targets however many sweeps they ask for); per-character weight patterns and rotation targets take the
+    one-character kernel."""
     calls = []
     real = adapter._solve_lanes
     monkeypatch.setattr(adapter, "_solve_lanes", lambda *a: calls.append(1) or real(*a))
@@ -201,6 +230,5 @@ def test_lanes_only_where_they_reproduce_the_request(monkeypatch):
     limited = 1 if settings.limited_lanes() > 1 else 0
     human.solve(human.effector_positions() + np.float32(0.05), method="ccd", max_iterations=2)
     assert len(calls) == 2 + limited
-    human.solve(human.effector_positions() + np.float32(0.05), method="ccd",
-                max_iterations=settings.CCD_LIMITED_MAX_SWEEPS + 1)
-    assert len(calls) == 2 + limited
+    human.solve(human.effector_positions() + np.float32(0.05), method="ccd", max_iterations=100)
+    assert len(calls) == 2 + 2 * limited

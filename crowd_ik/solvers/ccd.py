@@ -2,8 +2,7 @@
 
 A request whose characters all weight the same effectors (or none), without full rotation targets, runs
 kernels/ccd_lanes.py on the CPU (characters as SIMD lanes): its constraint-free kernel for a constraint-free rig with
-position targets only, its limited one (settings.limited_lanes' width) for joint limits or orientation targets, up to
-settings.CCD_LIMITED_MAX_SWEEPS sweeps;
+position targets only, its limited one (settings.limited_lanes' width) for joint limits or orientation targets;
 anything else, and CUDA (one lane), the one-character kernel (kernels/ccd.py)."""
 
 from __future__ import annotations
@@ -97,11 +96,11 @@ def solve(crowd, req) -> None:
 def lane_weights(crowd, req) -> tuple | None:
     """The effectors switched on when kernels/ccd_lanes.py reproduces this request (CPU lanes, no rotation targets,
     the same effectors weighted by every character that weights any; a rig with limits or orientation targets also
-    needs the limited lanes switched on, settings.limited_lanes, and at most settings.CCD_LIMITED_MAX_SWEEPS sweeps),
+    needs the limited lanes switched on, settings.limited_lanes),
     else None."""
     if settings.lanes() <= 1 or req.rotations is not None:
         return None
-    if not _free(crowd) and (settings.limited_lanes() <= 1 or req.max_iterations > settings.CCD_LIMITED_MAX_SWEEPS):
+    if not _free(crowd) and settings.limited_lanes() <= 1:
         return None
     return weighted_effectors(crowd.buffers.weights)
 

@@ -127,11 +127,6 @@ def lanes() -> int:
     return _LANES.get("L") or choose_lanes("cpu")
 
 
-# CCD's limited lanes (kernels/ccd_lanes.py, limited=True) take requests of at most this many sweeps: from the bench's
-# random humanoid poses, against the one-character kernel, iteration counts agree for 100 / 100 / 99.85 / 98.1 % and
-# poses within 1e-4 m for 99.6 / 99.4 / 99.2 / 97.0 % at 10 / 20 / 40 / 100 sweeps (float32 rounding in another order
-# and the trigonometry's polynomials, which long solves of unreachable targets amplify); longer ones keep the kernel
-CCD_LIMITED_MAX_SWEEPS = 40
 LIMITED_LANES_MAX = 8  # kernels/fabrik_limited_lanes.py's width at most: its IR, and compile time, grow with the width
 # (Taichi scalarises lane vectors; humanoid, cold, 2-core machine: 4 lanes 26-37 s of CPU, 8 lanes 40 s, 16 lanes
 # 140 s). With the limb trigonometry element-wise (kernels/lane_trig.py) 8 lanes pay: warm 10,000-humanoid game
