@@ -1,5 +1,5 @@
-"""The general DLS (kernels/dls.py: LM damping, the joint-limit active set, escapes, orientation rows) with
-characters as SIMD lanes, for requests without its extra terms (no rotation targets, secondary terms or free root).
+"""The general DLS (kernels/dls.py: LM damping, the joint-limit active set, escapes, orientation rows, full rotation
+targets) with characters as SIMD lanes, for requests without secondary terms or a free root.
 
 As kernels/ccd_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``; S
 streams, each a contiguous range of characters whose lanes refill (a lane whose character is done writes its
@@ -10,13 +10,15 @@ lane takes (accept, reject, stall, escape, return to the saved pose) is a per-la
 (restoring a pose, the kick, building and solving the system) run only when some lane needs them. The active
 set's rounds repeat while some lane froze a DOF.
 
-The rows are laid out by the request, the same for every lane (``eff_rows``: 3 rows for an effector that some
-character weights, 2 more where some character also gives it an orientation target): a lane that does not weight
-an effector, or gives it no orientation target, has zero rows there. A zero row of J adds a row and column of
-J W J^T + lam^2 I that are zero off the diagonal, so its Cholesky factor, back substitution and step are those of
-the one-character kernel's compacted system plus zero terms (the same numbers up to how fast math groups the sums,
-whose lengths the zero rows change). A character's start (its angles from its rotations)
-and its result are handled one lane at a time with the one-character kernel's scalar code.
+The rows are laid out by the request, the same for every lane, in blocks of three rows (``eff_rows`` bits per
+effector: its 3 position rows where some character weights it, its 2 axis rows and a zero row where one also gives
+it an orientation target, its 3 rotation rows where one gives it a rotation target): a lane that does not weight an
+effector, or has no such target, has zero rows there. A zero row of J adds a row and column of J W J^T + lam^2 I
+that are zero off the diagonal, so its Cholesky factor, back substitution and step are the compacted system's plus
+zero terms; the kernel is compiled without fast math, so every sum runs in the order written and the zero terms
+change no bits (a character alone, with its own layout, gets what it gets in any crowd). J W J^T and J^T y skip
+the columns a block's effector does not move (kernels/dls_lane_system.py). A character's start (its angles from
+its rotations) and its result are handled one lane at a time with the one-character kernel's scalar code.
 """
 
 import functools
@@ -26,6 +28,7 @@ import taichi as ti
 from crowd_ik.kernels import dls_lane_steps as dl
 from crowd_ik.kernels import dls_lane_system as dsys
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels.compile_settings import compiled_with
 from crowd_ik.kernels.dls_pose import first_bone
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.quat import joint_angles, yaw_quat
@@ -43,7 +46,7 @@ ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
 
 
 @functools.cache
-def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int):
+def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, rot: bool = False):
     """The kernel for L lanes per stream and scratch of max_joints, max_cols (DOFs + 1), max_rows and max_effectors
     per stream: l* (local rotations), b* (their backup before a step), v* (saved before an escape kick), p*
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
@@ -62,6 +65,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
     (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
     tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
+    gx_, gy_, gz_, gw_, gr_ = lane_rows(L, (S, max_effectors), 5) if rot else (None,) * 5
 
     @ti.func
     def parent_row(j, parent: ti.template()):
@@ -141,7 +145,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     @ti.func
     def objective(s, eff_joint: ti.template(), eff_axis: ti.template(), eff_has_axis: ti.template(),
                   eff_lim: ti.template(), length):
-        """dls_system.objective without its extra terms, per lane: (F, max position error, orientation error * L)."""
+        """dls_system.objective without its secondary terms and free root, per lane: (F, max position error,
+        orientation error * L); the full rotation targets' terms with `rot`."""
         f = V(0.0)
         perr = V(0.0)
         oerr = V(0.0)
@@ -166,13 +171,20 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 ang = length * lm.norm3(*dl.swing_vector(ax, ay, az, ox[s, e], oy[s, e], oz[s, e]))
                 f = ti.select(has, f + w * ang * ang, f)
                 oerr = ti.select(has, ti.max(oerr, ang), oerr)
+            if ti.static(rot):  # a full rotation target: rot_w (L angle)^2, angle = |log(q_target q^-1)|
+                g = gr_[s, e]
+                ang = length * lm.norm3(*dl.qlog(*lm.qmul(gx_[s, e], gy_[s, e], gz_[s, e], gw_[s, e], -rx[s, k],
+                                                          -ry[s, k], -rz[s, k], rw[s, k])))
+                f = ti.select(g > 0.0, f + g * ang * ang, f)
+                oerr = ti.select(g > 0.0, ti.max(oerr, ang), oerr)
         return f, perr, oerr
 
     @ti.func
     def build(s, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
               dof_start: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), eff_lim: ti.template(),
               eff_rows: ti.template(), length, R, C):
-        """dls_system.build_system without its extra terms, per lane, into the request's row layout (eff_rows)."""
+        """dls_system.build_system without its secondary terms and free root, per lane, into the request's row layout
+        (eff_rows bits: 1 position rows, 2 axis rows and a zero row, 4 rotation rows)."""
         for r, d in ti.ndrange(R, C):
             jac[s, r, d] = V(0.0)
         r = 0
@@ -199,7 +211,23 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 e0[s, r + 2] = sw * ti.select(big, dz * dc, dz)
                 ori = tw[s, e] < 0.0  # no lane
                 u1x, u1y, u1z, u2x, u2y, u2z = sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0
-                if eff_rows[e] == 2:
+                axis_rows = eff_rows[e] & 2
+                rr = r + 3  # the rotation rows (with `rot`): after the position and axis rows
+                if axis_rows != 0:
+                    rr += 3
+                sr = sw * 0.0
+                if ti.static(rot):
+                    if eff_rows[e] & 4:
+                        sr = ti.sqrt(ti.max(gr_[s, e], 0.0))
+                        vx_, vy_, vz_ = dl.qlog(*lm.qmul(gx_[s, e], gy_[s, e], gz_[s, e], gw_[s, e], -rx[s, k],
+                                                        -ry[s, k], -rz[s, k], rw[s, k]))
+                        ang = lm.norm3(vx_, vy_, vz_)
+                        cl = ang > ORI_CLAMP
+                        ac = ORI_CLAMP / ti.select(cl, ang, 1.0)
+                        e0[s, rr] = sr * length * ti.select(cl, vx_ * ac, vx_)
+                        e0[s, rr + 1] = sr * length * ti.select(cl, vy_ * ac, vy_)
+                        e0[s, rr + 2] = sr * length * ti.select(cl, vz_ * ac, vz_)
+                if axis_rows != 0:
                     ori = ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0
                     a = eff_axis[e]
                     ax, ay, az = lm.normalized(*lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z))
@@ -230,15 +258,20 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                 jac[s, r, d0 + c] = sw * qx
                                 jac[s, r + 1, d0 + c] = sw * qy
                                 jac[s, r + 2, d0 + c] = sw * qz
-                                if eff_rows[e] == 2:
+                                if axis_rows != 0:
                                     a1 = sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z)
                                     a2 = sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z)
                                     jac[s, r + 3, d0 + c] = ti.select(ori, a1, 0.0)
                                     jac[s, r + 4, d0 + c] = ti.select(ori, a2, 0.0)
+                                if ti.static(rot):
+                                    if eff_rows[e] & 4:
+                                        jac[s, rr, d0 + c] = sr * length * wx
+                                        jac[s, rr + 1, d0 + c] = sr * length * wy
+                                        jac[s, rr + 2, d0 + c] = sr * length * wz
                     n = parent[n]
-                r += 3
-                if eff_rows[e] == 2:
-                    r += 3  # the axis rows and a zero row: blocks of three rows
+                r = rr
+                if eff_rows[e] & 4:
+                    r += 3
 
     @ti.func
     def restore(s, on, J, C):
@@ -264,6 +297,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             lx[s, j], ly[s, j], lz[s, j], lw[s, j] = ti.select(back, sx, qx), ti.select(back, sy, qy), \
                 ti.select(back, sz, qz), ti.select(back, sw, qw)
 
+    @compiled_with(fast_math=False)  # sums in the order written: zero rows change no bits (see the docstring)
     @ti.kernel
     def solve(
         parent: ndarray(dtype=ti.i32, ndim=1), offset: ndarray(dtype=vec3, ndim=1), kind: ndarray(dtype=ti.i32, ndim=1),
@@ -277,15 +311,17 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         joint_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
         root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2), world_pos: ndarray(dtype=vec3, ndim=2),
         world_rot: ndarray(dtype=vec4, ndim=2), targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2),
-        orient: ndarray(dtype=vec3, ndim=2), n_groups: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
+        orient: ndarray(dtype=vec3, ndim=2), rot_t: ndarray(dtype=vec4, ndim=2), rot_w: ndarray(ndim=2),
+        n_groups: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
         tolerance: ti.f32, damping: ti.f32, length: ti.f32, error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1), stalled: ndarray(dtype=ti.i32, ndim=1),
     ):
-        """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0. Rig and settings
-        as there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout: 0 no rows (no character weights
-        the effector), 1 its 3 position rows, 2 also its 2 orientation rows and a zero row; n_groups = R / 3 blocks of
-        three rows, grp_eff (n_groups,) each block's effector; run_count (E, E), runs (E, E, K, 2) the runs [start,
-        end) of DOF columns two effectors' paths share (solvers/dls.shared_runs)."""
+        """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0, or with `rot` extra
+        = 1 (full rotation targets rot_t (N, E, 4) weighted by rot_w (N, E); not read without `rot`). Rig and settings
+        as there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout, bits: 1 its 3 position rows, 2 its
+        2 axis rows and a zero row, 4 its 3 rotation rows (0: no rows, no character weights the effector); n_groups =
+        R / 3 blocks of three rows, grp_eff (n_groups,) each block's effector; run_count (E, E), runs (E, E, K, 2) the
+        runs [start, end) of DOF columns two effectors' paths share (solvers/dls.shared_runs)."""
         N = root_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
@@ -352,6 +388,10 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                 o = orient[i, e]
                                 tx[s, e][l], ty[s, e][l], tz[s, e][l], tw[s, e][l] = t.x, t.y, t.z, weights[i, e]
                                 ox[s, e][l], oy[s, e][l], oz[s, e][l] = o.x, o.y, o.z
+                                if ti.static(rot):
+                                    g = rot_t[i, e]
+                                    gx_[s, e][l], gy_[s, e][l], gz_[s, e][l], gw_[s, e][l] = g.x, g.y, g.z, g.w
+                                    gr_[s, e][l] = rot_w[i, e]
                             f[l], perr[l], oerr[l], lam[l], accepted[l], attempts[l] = 0.0, 0.0, 0.0, damping, 0.0, 0.0
                             bad[l], stop[l], failed[l], first[l], kick[l], esc[l] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
                             esc_left[l], escapes[l], ref_f[l], ref_acc[l] = 0.0, 0.0, 0.0, 0.0

@@ -24,6 +24,17 @@ def qexp(rx, ry, rz):
 
 
 @ti.func
+def qlog(x, y, z, w):
+    """dls_pose.qlog per lane: the rotation vector (axis * angle, angle in [0, pi]) of a unit quaternion."""
+    neg = w < 0.0
+    x, y, z, w = ti.select(neg, -x, x), ti.select(neg, -y, y), ti.select(neg, -z, z), ti.select(neg, -w, w)
+    s = lm.norm3(x, y, z)
+    big = s > 1e-7
+    k = 2.0 * lt.atan2(s, w) / ti.select(big, s, 1.0)
+    return ti.select(big, x * k, 2.0 * x), ti.select(big, y * k, 2.0 * y), ti.select(big, z * k, 2.0 * z)
+
+
+@ti.func
 def perpendicular(ax, ay, az):
     """dls_pose.perpendicular per lane: a unit vector perpendicular to the unit vector a."""
     ux, uy, uz = lm.cross(ax, ay, az, 1.0, 0.0, 0.0)

@@ -3,8 +3,9 @@
 One position effector on a constraint-free rig with no secondary terms has a closed-form 3 x 3
 system: characters as SIMD lanes (kernels/dls_lanes.py; on CUDA one per thread, kernels/dls_free.py).
 Everything else runs the general solve (LM damping, joint-limit active set, orientation rows, rest / velocity /
-balance terms): on the CPU without rotation targets, secondary terms or a free root as SIMD lanes
-(kernels/dls_general_lanes.py, settings.general_lanes' width), else one character per thread (kernels/dls.py).
+balance terms): on the CPU without secondary terms or a free root as SIMD lanes (kernels/dls_general_lanes.py,
+settings.general_lanes' width; full rotation targets in a kernel of their own), else one character per thread
+(kernels/dls.py).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def _general(crowd, req) -> None:
         extra |= 4
         C += 3
     cfg, small = _general_settings(crowd, req, C)
-    if extra == 0 and settings.general_lanes() > 1:
+    if extra in (0, 1) and settings.general_lanes() > 1:
         _general_lanes(crowd, req, cfg, small)
         return
     prepared(dls.dls_solve)(
@@ -92,14 +93,18 @@ def _general_settings(crowd, req, C: int) -> tuple:
     return cfg, small
 
 
-def row_layout(rig, weights: np.ndarray, orient: np.ndarray | None) -> np.ndarray:
-    """(E,) int32, the general lanes' rows per effector: 0 where no character weights it, 1 for its 3 position rows,
-    2 where some character that weights it also gives it an orientation target (its axis rows too)."""
+def row_layout(rig, weights: np.ndarray, orient: np.ndarray | None, rot_w: np.ndarray | None = None) -> np.ndarray:
+    """(E,) int32, the general lanes' rows per effector, bits: 1 its 3 position rows (some character weights it, or
+    gives it a rotation target), 2 its 2 axis rows and a zero row (some character that weights it gives it an
+    orientation target, and the rig has its axis), 4 its 3 rotation rows (some character's rot_w > 0); 0 no rows."""
     on = weights > 0.0
     rows = on.any(axis=0).astype(np.int32)
     if orient is not None:
         ori = on & (np.einsum("nec,nec->ne", orient, orient) > 0.0) & (rig.arrays["eff_has_axis"] != 0)
-        rows[ori.any(axis=0)] = 2
+        rows[ori.any(axis=0)] |= 2
+    if rot_w is not None:
+        rot = (rot_w > 0.0).any(axis=0)
+        rows[rot] |= 5
     return rows
 
 
@@ -127,17 +132,20 @@ def shared_runs(rig) -> tuple[np.ndarray, np.ndarray]:
 
 
 def row_groups(layout: np.ndarray) -> np.ndarray:
-    """(G,) int32: the effector of each block of three rows of the general lanes' system, in row order (an effector
-    with axis rows has two blocks: its position rows, then its 2 axis rows and a zero row)."""
-    return np.repeat(np.arange(len(layout), dtype=np.int32), layout)
+    """(G,) int32: the effector of each block of three rows of the general lanes' system, in row order (per effector
+    its position rows, its axis rows and a zero row, its rotation rows, as its layout bits say)."""
+    counts = (layout & 1 > 0).astype(int) + (layout & 2 > 0) + (layout & 4 > 0)
+    return np.repeat(np.arange(len(layout), dtype=np.int32), counts)
 
 
 def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
-    """kernels/dls_general_lanes.py: the general solve without its extra terms, characters as SIMD lanes."""
+    """kernels/dls_general_lanes.py: the general solve without secondary terms or a free root (with or without full
+    rotation targets), characters as SIMD lanes."""
     from crowd_ik.kernels import dls_general_lanes, lane_plan
 
     ra, rig, b, ti = crowd.rig_arrays, crowd.rig, crowd.buffers, crowd.ti
-    layout = row_layout(rig, b.weights, None if b.orient_zero else b.orient)
+    rot = req.rotations is not None
+    layout = row_layout(rig, b.weights, None if b.orient_zero else b.orient, b.rot_w if rot else None)
     groups = row_groups(layout)
     kept = crowd.__dict__.setdefault("_dls_row_layouts", {})
     key = layout.tobytes()
@@ -152,13 +160,14 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     L = settings.general_lanes()
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
-    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max(6 * rig.n_effectors, 1)),
-                                              cap(rig.n_effectors))
+    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max((9 if rot else 6) * rig.n_effectors, 1)),
+                                              cap(rig.n_effectors), rot)
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch["dls_run_count"],
-        crowd._scratch["dls_runs"], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd), len(groups),
+        crowd._scratch["dls_runs"], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd),
+        *bundles.rotation_goal(crowd), len(groups),
         lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
         *bundles.result(crowd),
     )
