@@ -160,8 +160,9 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     L = settings.general_lanes()
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
-    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max((9 if rot else 6) * rig.n_effectors, 1)),
-                                              cap(rig.n_effectors), rot)
+    rows = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
+    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max(rows, 1)), cap(rig.n_effectors),
+                                              rot)
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
