@@ -1,5 +1,5 @@
 """The general DLS (kernels/dls.py: LM damping, the joint-limit active set, escapes, orientation rows, full rotation
-targets) with characters as SIMD lanes, for requests without secondary terms or a free root.
+targets, a free root) with characters as SIMD lanes, for requests without secondary terms.
 
 As kernels/ccd_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``; S
 streams, each a contiguous range of characters whose lanes refill (a lane whose character is done writes its
@@ -46,7 +46,8 @@ ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
 
 
 @functools.cache
-def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, rot: bool = False):
+def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, rot: bool = False,
+                   free_root: bool = False):
     """The kernel for L lanes per stream and scratch of max_joints, max_cols (DOFs + 1), max_rows and max_effectors
     per stream: l* (local rotations), b* (their backup before a step), v* (saved before an escape kick), p*
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
@@ -66,6 +67,19 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
     tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
     gx_, gy_, gz_, gw_, gr_ = lane_rows(L, (S, max_effectors), 5) if rot else (None,) * 5
+    r0x, r0y, r0z = lane_rows(L, (S,), 3) if free_root else (None,) * 3
+
+    @ti.func
+    def target(s, e, C):
+        """Effector e's target relative to the root point (dls_pose.root_point): with a free root the stored world
+        target minus (root_pos + the root's translation so far, the last three columns' angles), else the stored
+        target (already relative to root_pos)."""
+        ax, ay, az = tx[s, e], ty[s, e], tz[s, e]
+        if ti.static(free_root):
+            ax = ax - (r0x[s] + th[s, C - 3])
+            ay = ay - (r0y[s] + th[s, C - 2])
+            az = az - (r0z[s] + th[s, C - 1])
+        return ax, ay, az
 
     @ti.func
     def parent_row(j, parent: ti.template()):
@@ -105,6 +119,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         """dls.apply_step in the lanes `on`: back up the pose, add st (angles clamped, cones projected), FK."""
         for d in range(C):
             thb[s, d] = ti.select(on, th[s, d], thb[s, d])
+        if ti.static(free_root):  # the root's translation, the last three columns
+            for c in ti.static(range(3)):
+                th[s, C - 3 + c] = ti.select(on, th[s, C - 3 + c] + st[s, C - 3 + c], th[s, C - 3 + c])
         for j in range(parent.shape[0]):
             qx, qy, qz, qw = lx[s, j], ly[s, j], lz[s, j], lw[s, j]
             bx[s, j], by[s, j] = ti.select(on, qx, bx[s, j]), ti.select(on, qy, by[s, j])
@@ -144,9 +161,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
 
     @ti.func
     def objective(s, eff_joint: ti.template(), eff_axis: ti.template(), eff_has_axis: ti.template(),
-                  eff_lim: ti.template(), length):
-        """dls_system.objective without its secondary terms and free root, per lane: (F, max position error,
-        orientation error * L); the full rotation targets' terms with `rot`."""
+                  eff_lim: ti.template(), length, C):
+        """dls_system.objective without its secondary terms, per lane: (F, max position error, orientation error * L);
+        the full rotation targets' terms with `rot`, every target reachable with `free_root`."""
         f = V(0.0)
         perr = V(0.0)
         oerr = V(0.0)
@@ -155,10 +172,13 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             on = w > 0.0
             k = eff_joint[e]
             qx, qy, qz = px[s, k] - px[s, 0], py[s, k] - py[s, 0], pz[s, k] - pz[s, 0]
-            dx, dy, dz = tx[s, e] - px[s, k], ty[s, e] - py[s, k], tz[s, e] - pz[s, k]
-            cx, cy, cz = tx[s, e] - px[s, 0], ty[s, e] - py[s, 0], tz[s, e] - pz[s, 0]
+            ax, ay, az = target(s, e, C)
+            dx, dy, dz = ax - px[s, k], ay - py[s, k], az - pz[s, k]
+            cx, cy, cz = ax - px[s, 0], ay - py[s, 0], az - pz[s, 0]
             dist = lm.norm3(cx, cy, cz)
             reach = eff_lim[e, 0]
+            if ti.static(free_root):  # the root can close any gap: F is |t - p|^2
+                reach = 1e30
             qn = lm.norm3(qx, qy, qz)
             far = w * (2.0 * (dist * reach - lm.dot3(cx, cy, cz, qx, qy, qz)) - (reach - qn) * (reach + qn))
             near = w * (dx * dx + dy * dy + dz * dz)
@@ -167,8 +187,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             if eff_has_axis[e] != 0:
                 has = on & (ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0)
                 a = eff_axis[e]
-                ax, ay, az = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
-                ang = length * lm.norm3(*dl.swing_vector(ax, ay, az, ox[s, e], oy[s, e], oz[s, e]))
+                bx_, by_, bz_ = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
+                ang = length * lm.norm3(*dl.swing_vector(bx_, by_, bz_, ox[s, e], oy[s, e], oz[s, e]))
                 f = ti.select(has, f + w * ang * ang, f)
                 oerr = ti.select(has, ti.max(oerr, ang), oerr)
             if ti.static(rot):  # a full rotation target: rot_w (L angle)^2, angle = |log(q_target q^-1)|
@@ -183,7 +203,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     def build(s, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
               dof_start: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), eff_lim: ti.template(),
               eff_rows: ti.template(), length, R, C):
-        """dls_system.build_system without its secondary terms and free root, per lane, into the request's row layout
+        """dls_system.build_system without its secondary terms, per lane, into the request's row layout
         (eff_rows bits: 1 position rows, 2 axis rows and a zero row, 4 rotation rows)."""
         for r, d in ti.ndrange(R, C):
             jac[s, r, d] = V(0.0)
@@ -194,7 +214,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 k = eff_joint[e]
                 ex, ey, ez = px[s, k], py[s, k], pz[s, k]
                 reach, dmax = eff_lim[e, 0], eff_lim[e, 1]
-                gx, gy, gz = tx[s, e], ty[s, e], tz[s, e]
+                gx, gy, gz = target(s, e, C)
                 cx, cy, cz = gx - px[s, 0], gy - py[s, 0], gz - pz[s, 0]
                 dist = lm.norm3(cx, cy, cz)
                 far = dist > reach + dmax
@@ -209,6 +229,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 e0[s, r] = sw * ti.select(big, dx * dc, dx)
                 e0[s, r + 1] = sw * ti.select(big, dy * dc, dy)
                 e0[s, r + 2] = sw * ti.select(big, dz * dc, dz)
+                if ti.static(free_root):  # the whole body translates: identity in the position rows
+                    for c in ti.static(range(3)):
+                        jac[s, r + c, C - 3 + c] = sw
                 ori = tw[s, e] < 0.0  # no lane
                 u1x, u1y, u1z, u2x, u2y, u2z = sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0
                 axis_rows = eff_rows[e] & 2
@@ -355,6 +378,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                             iterations[i] = ti.cast(accepted[l], ti.i32)
                             stalled[i] = ti.cast(stop[l], ti.i32)
                             rp = root_pos[i]
+                            if ti.static(free_root):  # dls_pose.root_point, moved in place
+                                rp += vec3(th[s, C - 3][l], th[s, C - 2][l], th[s, C - 1][l])
+                                root_pos[i] = rp
                             for j in range(J):
                                 local_rot[i, j] = vec4(lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l])
                                 world_pos[i, j] = rp + vec3(px[s, j][l], py[s, j][l], pz[s, j][l])
@@ -383,6 +409,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                     for c in range(k):
                                         th[s, dof_start[j] + c][l] = a[c]
                             rp = root_pos[i]
+                            if ti.static(free_root):  # world targets: the root point moves
+                                r0x[s][l], r0y[s][l], r0z[s][l] = rp.x, rp.y, rp.z
+                                rp = vec3(0.0)
                             for e in range(E):
                                 t = targets[i, e] - rp
                                 o = orient[i, e]
@@ -400,7 +429,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     go = live > 0.0
                     apply_step(s, go, parent, offset, kind, jmode, axes, lo, hi, lim_p, lim_h, cone, dof_start,
                                child_start, child_list, C)
-                    nf, npe, noe = objective(s, eff_joint, eff_axis, eff_has_axis, eff_lim, length)
+                    nf, npe, noe = objective(s, eff_joint, eff_axis, eff_has_axis, eff_lim, length, C)
                     fst = go & (first > 0.0)
                     kck = go & (first == 0.0) & (kick > 0.0)
                     nrm = go & (first == 0.0) & (kick == 0.0)

@@ -3,9 +3,8 @@
 One position effector on a constraint-free rig with no secondary terms has a closed-form 3 x 3
 system: characters as SIMD lanes (kernels/dls_lanes.py; on CUDA one per thread, kernels/dls_free.py).
 Everything else runs the general solve (LM damping, joint-limit active set, orientation rows, rest / velocity /
-balance terms): on the CPU without secondary terms or a free root as SIMD lanes (kernels/dls_general_lanes.py,
-settings.general_lanes' width; full rotation targets in a kernel of their own), else one character per thread
-(kernels/dls.py).
+balance terms): on the CPU without secondary terms as SIMD lanes (kernels/dls_general_lanes.py, settings.general_lanes'
+width; full rotation targets and a free root in kernels of their own), else one character per thread (kernels/dls.py).
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def _general(crowd, req) -> None:
         extra |= 4
         C += 3
     cfg, small = _general_settings(crowd, req, C)
-    if extra in (0, 1) and settings.general_lanes() > 1:
+    if not extra & 2 and settings.general_lanes() > 1:
         _general_lanes(crowd, req, cfg, small)
         return
     prepared(dls.dls_solve)(
@@ -108,15 +107,18 @@ def row_layout(rig, weights: np.ndarray, orient: np.ndarray | None, rot_w: np.nd
     return rows
 
 
-def shared_runs(rig) -> tuple[np.ndarray, np.ndarray]:
+def shared_runs(rig, free_root: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """(count (E, E) int32, runs (E, E, K, 2) int32): per pair of effectors the runs [start, end) of consecutive DOF
     columns on both of their paths to the root, ascending (the only columns where both effectors' Jacobian rows can
-    be nonzero; a pair's own runs are the columns the effector moves)."""
+    be nonzero; a pair's own runs are the columns the effector moves). A free root adds its three columns, the last
+    (D + 1 .. D + 3), to every pair: every effector's position rows move with it."""
     E, kind, start = rig.n_effectors, rig.arrays["kind"], rig.arrays["dof_start"]
-    on = np.zeros((E, max(rig.n_dof, 1) + 1), bool)
+    on = np.zeros((E, max(rig.n_dof, 1) + 1 + 3 * free_root), bool)
     for e, eff in enumerate(rig.effectors):
         for j in rig.path_to_root(eff.joint):
             on[e, start[j] : start[j] + kind[j]] = True
+    if free_root:
+        on[:, -3:] = True
     found = {}
     for a in range(E):
         for b in range(E):
@@ -139,8 +141,8 @@ def row_groups(layout: np.ndarray) -> np.ndarray:
 
 
 def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
-    """kernels/dls_general_lanes.py: the general solve without secondary terms or a free root (with or without full
-    rotation targets), characters as SIMD lanes."""
+    """kernels/dls_general_lanes.py: the general solve without secondary terms (with or without full rotation targets
+    and a free root), characters as SIMD lanes."""
     from crowd_ik.kernels import dls_general_lanes, lane_plan
 
     ra, rig, b, ti = crowd.rig_arrays, crowd.rig, crowd.buffers, crowd.ti
@@ -149,8 +151,10 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     groups = row_groups(layout)
     kept = crowd.__dict__.setdefault("_dls_row_layouts", {})
     key = layout.tobytes()
-    if crowd._scratch.get("dls_run_count") is None:  # once per crowd
-        for name, value in zip(("dls_run_count", "dls_runs"), shared_runs(rig)):
+    free_root = req.root_weight is not None
+    runs = (f"dls_run_count_{free_root:d}", f"dls_runs_{free_root:d}")
+    if crowd._scratch.get(runs[0]) is None:  # once per crowd (and free root or not)
+        for name, value in zip(runs, shared_runs(rig, free_root)):
             crowd.scratch(name, ti.i32, value.shape).from_numpy(value)
     if key not in kept:  # uploaded once per layout, with each block's effector
         kept[key] = (crowd.scratch(f"dls_rows_{len(kept)}", ti.i32, layout.shape),
@@ -162,12 +166,12 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     cap = lane_plan.capacity
     rows = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
     kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max(rows, 1)), cap(rig.n_effectors),
-                                              rot)
+                                              rot, free_root)
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch["dls_run_count"],
-        crowd._scratch["dls_runs"], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd),
+        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch[runs[0]],
+        crowd._scratch[runs[1]], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd),
         *bundles.rotation_goal(crowd), len(groups),
         lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
         *bundles.result(crowd),
