@@ -200,6 +200,11 @@ def test_run_writes_json_with_meta_and_records(tiny_run):
     for key in ("cpu_model", "cores", "threads", "python", "numpy", "taichi", "arches", "settings", "command"):
         assert key in meta
     assert [a["resolved"] for a in meta["arches"]] == ["cpu"] and meta["arches"][0]["taichi_threads"] >= 1
+    from crowd_ik.solvers import settings
+
+    arch = meta["arches"][0]  # the lane widths the cells ran with (the bench's child process chose them alike)
+    assert (arch["lanes"], arch["limited_lanes"], arch["general_lanes"]) == (
+        settings.lanes(), settings.limited_lanes(), settings.general_lanes())
     cells = {(r["arch"], r["rig"], r["solver"], r["n"]) for r in data["records"]}
     assert cells == {("cpu", rig, "fabrik", n) for rig in ("chain16", "humanoid") for n in (50, 200)}
     for r in data["records"]:

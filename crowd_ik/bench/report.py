@@ -94,6 +94,7 @@ def build_meta(opts: Options, children: list[dict], arches: tuple[str, ...], loa
         loadavg_before=load_before,
         isa=_isa(), peers=list(opts.peers),
         arches=[dict(requested=c["requested"], resolved=c["arch"], lanes=c.get("lanes"),
+                     limited_lanes=c.get("limited_lanes"), general_lanes=c.get("general_lanes"),
                      taichi_threads=c["taichi_threads"], gpu=c["gpu"],
                      peak_rss_bytes=c["peak_rss_bytes"], loadavg_start=c["loadavg_start"],
                      loadavg_end=c["loadavg_end"], compile=c["compile"]) for c in children],

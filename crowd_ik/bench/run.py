@@ -147,7 +147,8 @@ def child_main(spec_path: str, result_path: str) -> int:
             bar.update(1)
     from crowd_ik.solvers import settings
 
-    result = dict(arch=arch, requested=spec["arch"], lanes=settings.lanes(),
+    result = dict(arch=arch, requested=spec["arch"], lanes=settings.lanes(), limited_lanes=settings.limited_lanes(),
+                  general_lanes=settings.general_lanes(),
                   taichi_threads=int(ti.lang.impl.current_cfg().cpu_max_num_threads),
                   gpu=_gpu_name() if arch == "cuda" else None,
                   peak_rss_bytes=int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024,
@@ -233,7 +234,11 @@ def run(args) -> int:
         print(bench_peers.format_table(records))
     for c in children:
         where = f"{c['gpu']}: one character per GPU thread" if c["arch"] == "cuda" and c.get("gpu") else _isa()
-        print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({where})")
+        narrow = ""
+        if c.get("lanes", 0) > 1 and c.get("limited_lanes"):  # the joint-limited and general DLS kernels' width
+            narrow = (f"; {c['limited_lanes']} for the joint-limited FABRIK and CCD, {c.get('general_lanes') or 1} for "
+                      "the general DLS")
+        print(f"lanes {c['arch']}: {c.get('lanes')} characters per thread ({where}){narrow}")
         for key, info in c["compile"].items():
             print(f"compile {c['arch']} {key}: first call {info['first_call_s']:.2f} s, steady {info['steady_s']:.3f} s "
                   f"on {info['n']} characters -> compile {info['compile_s']:.2f} s")
