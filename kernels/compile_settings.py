@@ -12,6 +12,10 @@ Two of Taichi's own IR passes were most of a big kernel's cold compile, and LLVM
   bit for bit (docs/ARCHITECTURE.md "Compile time"); other kernels changed their rounding (DLS), so the mark is per
   kernel.
 
+The general DLS lanes (kernels/dls_general_lanes.py) are compiled without fast math: their sums then run in the
+order written, so the zero rows a request's layout gives some lanes change no bits (docs/ARCHITECTURE.md
+"Determinism"), and they ran no slower.
+
 The settings are fields of Taichi's one compile config, which a kernel's first launch reads when it compiles it
 (within a process Taichi then keeps that compile whatever the settings; the offline cache's key includes them), so
 the wrapper sets them around each call. Every Taichi launch of a process is on its main thread
