@@ -31,6 +31,8 @@ from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels.compile_settings import compiled_with
 from crowd_ik.kernels.dls_pose import first_bone
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
+
+SCRATCH_BYTES = 64 << 20  # a kernel's stream scratch at most this (fewer streams for a big rig), see max_streams
 from crowd_ik.kernels.quat import joint_angles, yaw_quat
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.solvers.settings import (
@@ -45,6 +47,14 @@ vec4 = ti.math.vec4
 ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
 
 
+def max_streams(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int) -> int:
+    """The streams general_solver's scratch holds: lane_plan.MAX_STREAMS, fewer where that would pass SCRATCH_BYTES
+    (a big imported rig: a humanoid's 256 streams take about 34 MB), at least 8."""
+    per_stream = 4 * L * (20 * max_joints + 8 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows)
+                          + 12 * max_effectors + 3)
+    return max(8, min(MAX_STREAMS, SCRATCH_BYTES // per_stream))
+
+
 @functools.cache
 def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, rot: bool = False,
                    free_root: bool = False):
@@ -57,7 +67,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     origin, the parent row of the root joint."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
-    S = MAX_STREAMS
+    S = max_streams(L, max_joints, max_cols, max_rows, max_effectors)
     (lx, ly, lz, lw, bx, by, bz, bw, vx, vy, vz, vw, px, py, pz,
      rx, ry, rz, rw) = lane_rows(L, (S, max_joints), 19)
     th, thb, ths, st, fr, mp = lane_rows(L, (S, max_cols), 6)

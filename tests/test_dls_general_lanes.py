@@ -149,6 +149,27 @@ def test_a_character_does_not_depend_on_its_lane_mates(name):
         np.testing.assert_array_equal(one.joint_positions()[0], pos[i])
 
 
+def test_a_big_rig_gets_fewer_streams_and_the_same_bits(monkeypatch):
+    """The stream scratch of a big rig is capped (kernels/dls_general_lanes.SCRATCH_BYTES): fewer streams, at least 8,
+    256 for the humanoid; a crowd run on the fewest streams gets every character's bits of the usual run."""
+    from crowd_ik.kernels import dls_general_lanes as g
+    from crowd_ik.kernels import lane_plan
+    from crowd_ik.kernels.lane_plan import capacity as cap
+
+    assert g.max_streams(8, cap(22), cap(37), cap(30), cap(5)) == 256
+    big = (8, 128, 256, 256, 32)
+    assert 8 <= g.max_streams(*big) < 64
+    assert lane_plan.streams(4000, settings.general_lanes()) > 8
+    out = []
+    for limit in (g.SCRATCH_BYTES, 1):
+        monkeypatch.setattr(g, "SCRATCH_BYTES", limit)
+        crowd, targets, weights, orient = _case(cone_arm(), 4000, seed=21)  # 16 streams, or 8 under the cap
+        rep = _solve(crowd, targets, weights, orient, 10)
+        out.append((rep.iterations, crowd.joint_positions()))
+    np.testing.assert_array_equal(out[0][0], out[1][0])
+    np.testing.assert_array_equal(out[0][1], out[1][1])
+
+
 def test_row_layout():
     """Bits: 1 the 3 position rows of an effector some character weights (or gives a rotation target), 2 its axis rows
     where one of those also gives it an orientation target and the rig has its axis, 4 its rotation rows; none for an

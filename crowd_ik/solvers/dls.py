@@ -165,16 +165,16 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
     rows = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
-    kernel = dls_general_lanes.general_solver(L, cap(rig.n_joints + 1), cap(C), cap(max(rows, 1)), cap(rig.n_effectors),
-                                              rot, free_root)
+    sizes = (cap(rig.n_joints + 1), cap(C), cap(max(rows, 1)), cap(rig.n_effectors))
+    kernel = dls_general_lanes.general_solver(L, *sizes, rot, free_root)
+    streams = min(lane_plan.streams(crowd.n, L), dls_general_lanes.max_streams(L, *sizes))
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch[runs[0]],
         crowd._scratch[runs[1]], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd),
         *bundles.rotation_goal(crowd), len(groups),
-        lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
-        *bundles.result(crowd),
+        streams, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"], *bundles.result(crowd),
     )
 
 
