@@ -62,9 +62,10 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     per stream: l* (local rotations), b* (their backup before a step), v* (saved before an escape kick), p*
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
     save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr); the system's jac (rows x
-    columns), sys (its Cholesky factor), e0 (the aimed error), y (the solution); per effector t* (target relative to
-    the root, weight), o* (orientation target). Joint row J (max_joints > J) holds the root's yaw rotation at the
-    origin, the parent row of the root joint."""
+    columns), sys (its Cholesky factor), e0 (the aimed error), yv (the solution), ga (J^T yv); per effector t*
+    (target relative to the root, or in the world with a free root; weight), o* (orientation target), tq* (with `rot`:
+    the rotation target and its weight tqk); root* (with `free_root`: root_pos, per stream). Joint row J (max_joints >
+    J) holds the root's yaw rotation at the origin, the parent row of the root joint."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     S = max_streams(L, max_joints, max_cols, max_rows, max_effectors)
@@ -76,8 +77,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
     (sys,) = lane_rows(L, (S, max_rows, max_rows), 1)
     tx, ty, tz, tw, ox, oy, oz = lane_rows(L, (S, max_effectors), 7)
-    gx_, gy_, gz_, gw_, gr_ = lane_rows(L, (S, max_effectors), 5) if rot else (None,) * 5
-    r0x, r0y, r0z = lane_rows(L, (S,), 3) if free_root else (None,) * 3
+    tqx, tqy, tqz, tqw, tqk = lane_rows(L, (S, max_effectors), 5) if rot else (None,) * 5
+    rootx, rooty, rootz = lane_rows(L, (S,), 3) if free_root else (None,) * 3
 
     @ti.func
     def target(s, e, C):
@@ -86,9 +87,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         target (already relative to root_pos)."""
         ax, ay, az = tx[s, e], ty[s, e], tz[s, e]
         if ti.static(free_root):
-            ax = ax - (r0x[s] + th[s, C - 3])
-            ay = ay - (r0y[s] + th[s, C - 2])
-            az = az - (r0z[s] + th[s, C - 1])
+            ax = ax - (rootx[s] + th[s, C - 3])
+            ay = ay - (rooty[s] + th[s, C - 2])
+            az = az - (rootz[s] + th[s, C - 1])
         return ax, ay, az
 
     @ti.func
@@ -197,13 +198,13 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             if eff_has_axis[e] != 0:
                 has = on & (ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0)
                 a = eff_axis[e]
-                bx_, by_, bz_ = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
-                ang = length * lm.norm3(*dl.swing_vector(bx_, by_, bz_, ox[s, e], oy[s, e], oz[s, e]))
+                ux_, uy_, uz_ = lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z)
+                ang = length * lm.norm3(*dl.swing_vector(ux_, uy_, uz_, ox[s, e], oy[s, e], oz[s, e]))
                 f = ti.select(has, f + w * ang * ang, f)
                 oerr = ti.select(has, ti.max(oerr, ang), oerr)
             if ti.static(rot):  # a full rotation target: rot_w (L angle)^2, angle = |log(q_target q^-1)|
-                g = gr_[s, e]
-                ang = length * lm.norm3(*dl.qlog(*lm.qmul(gx_[s, e], gy_[s, e], gz_[s, e], gw_[s, e], -rx[s, k],
+                g = tqk[s, e]
+                ang = length * lm.norm3(*dl.qlog(*lm.qmul(tqx[s, e], tqy[s, e], tqz[s, e], tqw[s, e], -rx[s, k],
                                                           -ry[s, k], -rz[s, k], rw[s, k])))
                 f = ti.select(g > 0.0, f + g * ang * ang, f)
                 oerr = ti.select(g > 0.0, ti.max(oerr, ang), oerr)
@@ -251,8 +252,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 sr = sw * 0.0
                 if ti.static(rot):
                     if eff_rows[e] & 4:
-                        sr = ti.sqrt(ti.max(gr_[s, e], 0.0))
-                        vx_, vy_, vz_ = dl.qlog(*lm.qmul(gx_[s, e], gy_[s, e], gz_[s, e], gw_[s, e], -rx[s, k],
+                        sr = ti.sqrt(ti.max(tqk[s, e], 0.0))
+                        vx_, vy_, vz_ = dl.qlog(*lm.qmul(tqx[s, e], tqy[s, e], tqz[s, e], tqw[s, e], -rx[s, k],
                                                         -ry[s, k], -rz[s, k], rw[s, k]))
                         ang = lm.norm3(vx_, vy_, vz_)
                         cl = ang > ORI_CLAMP
@@ -420,7 +421,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                         th[s, dof_start[j] + c][l] = a[c]
                             rp = root_pos[i]
                             if ti.static(free_root):  # world targets: the root point moves
-                                r0x[s][l], r0y[s][l], r0z[s][l] = rp.x, rp.y, rp.z
+                                rootx[s][l], rooty[s][l], rootz[s][l] = rp.x, rp.y, rp.z
                                 rp = vec3(0.0)
                             for e in range(E):
                                 t = targets[i, e] - rp
@@ -429,8 +430,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                 ox[s, e][l], oy[s, e][l], oz[s, e][l] = o.x, o.y, o.z
                                 if ti.static(rot):
                                     g = rot_t[i, e]
-                                    gx_[s, e][l], gy_[s, e][l], gz_[s, e][l], gw_[s, e][l] = g.x, g.y, g.z, g.w
-                                    gr_[s, e][l] = rot_w[i, e]
+                                    tqx[s, e][l], tqy[s, e][l], tqz[s, e][l], tqw[s, e][l] = g.x, g.y, g.z, g.w
+                                    tqk[s, e][l] = rot_w[i, e]
                             f[l], perr[l], oerr[l], lam[l], accepted[l], attempts[l] = 0.0, 0.0, 0.0, damping, 0.0, 0.0
                             bad[l], stop[l], failed[l], first[l], kick[l], esc[l] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
                             esc_left[l], escapes[l], ref_f[l], ref_acc[l] = 0.0, 0.0, 0.0, 0.0
