@@ -136,6 +136,16 @@ class Crowd:
             self._scratch[name] = arr
         return arr
 
+    def constants(self, names: tuple[str, ...], compute) -> tuple:
+        """Named solver constants (arrays that depend on the rig, or on a pattern the name spells out), uploaded once:
+        on first use compute() gives their values in the order of names (int32 arrays as i32, others as f32); later
+        calls return the uploaded ndarrays without calling it."""
+        if any(self._scratch.get(name) is None for name in names):
+            for name, value in zip(names, compute()):
+                dtype = self.ti.i32 if value.dtype == np.int32 else self.ti.f32
+                self.scratch(name, dtype, value.shape).from_numpy(value)
+        return tuple(self._scratch[name] for name in names)
+
     # ---------------------------------------------------------------- state in
     def set_roots(self, positions, yaw=None) -> None:
         """Place the characters: positions (N, dim) world metres; yaw (N,) radians about +y (3D only)."""

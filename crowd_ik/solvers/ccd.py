@@ -58,17 +58,16 @@ def limb_lengths(rig, move: np.ndarray) -> np.ndarray:
 def _rig_constants(crowd) -> tuple:
     """The rig's CCD constants as ndarrays, uploaded once per crowd: below (J, E) 1 where effector e's joint lies in
     joint j's subtree (j included), reach (E,), eff_move (E, 2) (moving_joints) and limb_len (E, 2) (limb_lengths)."""
-    ti, rig = crowd.ti, crowd.rig
-    names = ("ccd_below", "ccd_reach", "ccd_eff_move", "ccd_limb_len")
-    if any(crowd._scratch.get(name) is None for name in names):
+    rig = crowd.rig
+
+    def values():
         below = np.zeros((rig.n_joints, rig.n_effectors), np.int32)
         for e, eff in enumerate(rig.effectors):
             below[rig.path_to_root(eff.joint), e] = 1
         move = moving_joints(rig)
-        values = (below, rig.reach.astype(np.float32), move, limb_lengths(rig, move).astype(np.float32))
-        for name, value in zip(names, values):
-            crowd.scratch(name, ti.i32 if value.dtype == np.int32 else ti.f32, value.shape).from_numpy(value)
-    return tuple(crowd._scratch[name] for name in names)
+        return below, rig.reach.astype(np.float32), move, limb_lengths(rig, move).astype(np.float32)
+
+    return crowd.constants(("ccd_below", "ccd_reach", "ccd_eff_move", "ccd_limb_len"), values)
 
 
 def solve(crowd, req) -> None:
@@ -116,14 +115,9 @@ def _solve_lanes(crowd, req, below, reach, weighted: tuple) -> None:
     ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
     free = _free(crowd)
     L = settings.lanes() if free else settings.limited_lanes()
-    kept = crowd.__dict__.setdefault("_ccd_lane_inputs", {})
-    if weighted not in kept:  # the pattern's joints and effectors as ndarrays, uploaded once
-        active, on = crowd.scratch(f"ccd_active_{len(kept)}", crowd.ti.i32, (rig.n_joints,)), \
-            crowd.scratch(f"ccd_on_{len(kept)}", crowd.ti.i32, (rig.n_effectors,))
-        active.from_numpy(active_joints(crowd, weighted))
-        on.from_numpy(np.asarray(weighted, np.int32))
-        kept[weighted] = (active, on)
-    active, on = kept[weighted]
+    pattern = "".join("1" if w else "0" for w in weighted)  # the pattern's joints and effectors, uploaded once
+    active, on = crowd.constants((f"ccd_active_{pattern}", f"ccd_on_{pattern}"),
+                                 lambda: (active_joints(crowd, weighted), np.asarray(weighted, np.int32)))
     kernel = ccd_lanes.ccd_solver(L, lane_plan.capacity(rig.n_joints), lane_plan.capacity(rig.n_effectors), not free)
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["lim_h"], ra["cone"],

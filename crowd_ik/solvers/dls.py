@@ -145,34 +145,28 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     and a free root), characters as SIMD lanes."""
     from crowd_ik.kernels import dls_general_lanes, lane_plan
 
-    ra, rig, b, ti = crowd.rig_arrays, crowd.rig, crowd.buffers, crowd.ti
+    ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
     rot = req.rotations is not None
     layout = row_layout(rig, b.weights, None if b.orient_zero else b.orient, b.rot_w if rot else None)
     groups = row_groups(layout)
-    kept = crowd.__dict__.setdefault("_dls_row_layouts", {})
-    key = layout.tobytes()
     free_root = req.root_weight is not None
-    runs = (f"dls_run_count_{free_root:d}", f"dls_runs_{free_root:d}")
-    if crowd._scratch.get(runs[0]) is None:  # once per crowd (and free root or not)
-        for name, value in zip(runs, shared_runs(rig, free_root)):
-            crowd.scratch(name, ti.i32, value.shape).from_numpy(value)
-    if key not in kept:  # uploaded once per layout, with each block's effector
-        kept[key] = (crowd.scratch(f"dls_rows_{len(kept)}", ti.i32, layout.shape),
-                     crowd.scratch(f"dls_groups_{len(kept)}", ti.i32, (max(len(groups), 1),)))
-        kept[key][0].from_numpy(layout)
-        kept[key][1].from_numpy(np.resize(groups, max(len(groups), 1)))
+    runs = crowd.constants((f"dls_run_count_{free_root:d}", f"dls_runs_{free_root:d}"),
+                           lambda: shared_runs(rig, free_root))
+    spelled = "_".join(str(x) for x in layout)  # uploaded once per layout, with each block's effector
+    rows = crowd.constants((f"dls_rows_{spelled}", f"dls_groups_{spelled}"),
+                           lambda: (layout, np.resize(groups, max(len(groups), 1))))
     L = settings.general_lanes()
     C = small["joint_w"].shape[0]
     cap = lane_plan.capacity
-    rows = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
-    sizes = (cap(rig.n_joints + 1), cap(C), cap(max(rows, 1)), cap(rig.n_effectors))
+    most = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
+    sizes = (cap(rig.n_joints + 1), cap(C), cap(max(most, 1)), cap(rig.n_effectors))
     kernel = dls_general_lanes.general_solver(L, *sizes, rot, free_root)
     streams = min(lane_plan.streams(crowd.n, L), dls_general_lanes.max_streams(L, *sizes))
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *kept[key], crowd._scratch[runs[0]],
-        crowd._scratch[runs[1]], small["joint_w"], *bundles.pose(crowd), *bundles.goal(crowd),
+        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *rows, *runs, small["joint_w"], *bundles.pose(crowd),
+        *bundles.goal(crowd),
         *bundles.rotation_goal(crowd), len(groups),
         streams, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"], *bundles.result(crowd),
     )

@@ -46,13 +46,11 @@ def apply(crowd, req) -> None:
     from crowd_ik.kernels import poles
 
     ra, ti, E, N = crowd.rig_arrays, crowd.ti, crowd.rig.n_effectors, crowd.n
-    names = ("bend", "pivot", "below")
-    arrays = {name: crowd._scratch.get(f"pole_{name}") for name in names}
-    if any(a is None for a in arrays.values()):  # the rig's limbs, uploaded once per crowd
+    def limbs():  # the rig's limbs (int32), uploaded once per crowd
         bend, pivot = pole_joints(crowd.rig)
-        for name, value in zip(names, (bend, pivot, joints_below(crowd.rig, pivot))):
-            arrays[name] = crowd.scratch(f"pole_{name}", ti.i32, value.shape)
-            arrays[name].from_numpy(value)
+        return bend, pivot, joints_below(crowd.rig, pivot)
+
+    arrays = dict(zip(("bend", "pivot", "below"), crowd.constants(("pole_bend", "pole_pivot", "pole_below"), limbs)))
     b = crowd.buffers
     prepared(poles.pole_swivel)(
         ra["parent"], ra["offset"], ra["kind"], ra["axes"], ra["lo"], ra["hi"], ra["lim_p"], ra["cone"],
