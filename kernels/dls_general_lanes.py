@@ -28,6 +28,7 @@ import taichi as ti
 from crowd_ik.kernels import dls_lane_steps as dl
 from crowd_ik.kernels import dls_lane_system as dsys
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.compile_settings import compiled_with
 from crowd_ik.kernels.dls_pose import first_bone
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
@@ -363,14 +364,11 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         G = n_groups
         R = 3 * G
         max_attempts = 2 * max_iterations + 8
-        chunk = (N + n_streams - 1) // n_streams
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
-            s = slot // stride
-            nxt = s * chunk
-            end = ti.min(nxt + chunk, N)
+            s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none
             live = V(0.0)
             pending = V(1.0)  # lanes to hand their character's result out and take the next one

@@ -17,6 +17,7 @@ import functools
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
+from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.kernels.dls_free import objective
@@ -168,14 +169,11 @@ def free_solver(L: int, max_joints: int):
         reach = eff_lim[0, 0]
         dmax = eff_lim[0, 1]
         max_attempts = 2 * max_iterations + 8
-        chunk = (N + n_streams - 1) // n_streams
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
-            s = slot // stride
-            nxt = s * chunk
-            end = ti.min(nxt + chunk, N)
+            s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)
             tx, ty, tz, w, sw, ys, yc = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(1.0)
             f_cur, perr, ref_f, lam = V(0.0), V(0.0), V(0.0), V(0.0)

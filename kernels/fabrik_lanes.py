@@ -84,15 +84,11 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         N = world_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
-        S = n_streams
-        chunk = (N + S - 1) // S
-        stride = spread_stride(S)
-        for slot in range(S * stride):  # (kernels/work_split.py: the streams on every thread)
+        stride = spread_stride(n_streams)
+        for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
-            s = slot // stride
-            nxt = s * chunk
-            end = ti.min(nxt + chunk, N)
+            s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none
             live = V(0.0)
             err = V(0.0)
@@ -265,13 +261,12 @@ def free_recover(L: int, max_joints: int):
         J = parent.shape[0]
         E = eff_joint.shape[0]
         P = gx.shape[0]
-        chunk = (P + n_streams - 1) // n_streams
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
-            s = slot // stride
-            for p in range(s * chunk, ti.min(s * chunk + chunk, P)):
+            s, first, end = ls.stream_range(slot, stride, P, n_streams)
+            for p in range(first, end):
                 m = V(0.0)  # lanes whose character iterated
                 rx, ry, rz, h = V(0.0), V(0.0), V(0.0), V(0.0)
                 for l in range(L):

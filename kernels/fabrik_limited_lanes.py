@@ -213,15 +213,11 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         N = root_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
-        S = n_streams
-        chunk = (N + S - 1) // S
-        stride = spread_stride(S)
-        for slot in range(S * stride):  # (kernels/work_split.py: the streams on every thread)
+        stride = spread_stride(n_streams)
+        for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
-            s = slot // stride
-            nxt = s * chunk
-            end = ti.min(nxt + chunk, N)
+            s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none
             live = V(0.0)
             err = V(0.0)

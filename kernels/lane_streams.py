@@ -1,12 +1,23 @@
-"""The per-lane bookkeeping the refilling streams of the lane kernels share (kernels/fabrik_lanes.py,
-kernels/fabrik_limited_lanes.py, kernels/ccd_lanes.py): a lane's error and the rule that stops its character.
+"""The bookkeeping the refilling streams of the lane kernels share (kernels/fabrik_lanes.py,
+kernels/fabrik_limited_lanes.py, kernels/ccd_lanes.py, kernels/dls_lanes.py, kernels/dls_general_lanes.py): which
+characters a stream works through, a lane's error and the rule that stops its character.
 
-Both take the streams' field rows as template arguments; neither creates Taichi state.
+They take the streams' field rows as template arguments; none creates Taichi state.
 """
 
 import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
+
+
+@ti.func
+def stream_range(slot, stride, n, n_streams):
+    """(s, first, end): the stream that iteration `slot` of a kernel's spread loop works on (kernels/work_split.py:
+    every stride-th iteration is a stream, the others skip) and its contiguous range [first, end) of n items."""
+    s = slot // stride
+    chunk = (n + n_streams - 1) // n_streams
+    first = s * chunk
+    return s, first, ti.min(first + chunk, n)
 
 
 @ti.func
