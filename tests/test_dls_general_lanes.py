@@ -64,15 +64,23 @@ def _solve(crowd, targets, weights, orient, iterations):
                        tolerance=1e-3)
 
 
-def _both(monkeypatch, rig, n, seed, iterations):
+def _on_both(monkeypatch, run):
+    """[run() with the lanes, run() with the one-character kernel]."""
     out = []
     for lanes in (True, False):
         monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
-        crowd, targets, weights, orient = _case(rig, n, seed)
-        rep = _solve(crowd, targets, weights, orient, iterations)
-        out.append((rep, crowd.joint_positions(), crowd.rotations(), crowd))
+        out.append(run())
     monkeypatch.undo()
     return out
+
+
+def _both(monkeypatch, rig, n, seed, iterations):
+    def run():
+        crowd, targets, weights, orient = _case(rig, n, seed)
+        rep = _solve(crowd, targets, weights, orient, iterations)
+        return rep, crowd.joint_positions(), crowd.rotations(), crowd
+
+    return _on_both(monkeypatch, run)
 
 
 @pytest.mark.parametrize("name", sorted(RIGS))
@@ -99,19 +107,17 @@ def test_lanes_stay_as_close_to_the_twin_as_the_kernel(monkeypatch):
     from crowd_ik.bench import workloads as w
 
     wl = w.make_workload("humanoid", 48)
-    runs = []
-    for lanes in (True, False):
-        monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
+
+    def run():
         crowd = cik.Crowd(wl.rig, wl.n, spacing=w.SPACING)
         crowd.set_angles(wl.angles)
-        roots, yaw, rot0 = *crowd.roots(), crowd.rotations()
+        start = (*crowd.roots(), crowd.rotations())
         rep = crowd.solve(wl.targets, method="dls", max_iterations=wl.max_iterations, tolerance=wl.tolerance)
-        runs.append((rep, crowd.joint_positions()))
-    monkeypatch.undo()
-    twin = dls_solve(wl.rig, roots, yaw, rot0, wl.targets, max_iterations=wl.max_iterations,
-                     tolerance=wl.tolerance)
-    (a, pa), (b, pb) = runs
-    agree = [np.mean(r.iterations == twin[3]) for r, _ in runs]
+        return rep, crowd.joint_positions(), start
+
+    (a, pa, start), (b, pb, _) = _on_both(monkeypatch, run)
+    twin = dls_solve(wl.rig, *start, wl.targets, max_iterations=wl.max_iterations, tolerance=wl.tolerance)
+    agree = [np.mean(r.iterations == twin[3]) for r in (a, b)]
     assert agree[0] >= agree[1] - 0.1, agree
     assert np.mean(a.status == b.status) >= 0.95
     ok = (a.status == 0) & (b.status == 0) & (twin[2] <= wl.tolerance)
@@ -210,16 +216,16 @@ def test_rotation_targets_match_the_one_character_kernel(monkeypatch, name):
     rots /= np.linalg.norm(rots, axis=-1, keepdims=True)
     rot_w = np.where(rng.uniform(size=(n, rig.n_effectors)) < 0.5, 0.0, 0.7).astype(np.float32)
     kw = dict(rotations=rots, rotation_weights=rot_w, max_iterations=8, tolerance=1e-3)
-    out = []
-    for lanes in (True, False):
-        monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
-        crowd, targets, weights, orient = _case(rig, n, seed=13)
-        roots, yaw, rot0 = *crowd.roots(), crowd.rotations()
+    crowd, targets, weights, orient = _case(rig, n, seed=13)
+    start = (*crowd.roots(), crowd.rotations())
+
+    def run():
+        crowd = _case(rig, n, seed=13)[0]
         rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, **kw)
-        out.append((rep, crowd.joint_positions()))
-    monkeypatch.undo()
-    twin = dls_solve(rig, roots, yaw, rot0, targets, weights=weights, orientations=orient, **kw)
-    (a, pa), (b, pb) = out
+        return rep, crowd.joint_positions()
+
+    (a, pa), (b, pb) = _on_both(monkeypatch, run)
+    twin = dls_solve(rig, *start, targets, weights=weights, orientations=orient, **kw)
     assert a.iterations.max() > 2
     assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
     near = [np.mean(np.abs(p - twin[1]).max(axis=(1, 2)) <= 1e-4) for p in (pa, pb)]
@@ -233,15 +239,14 @@ def test_a_free_root_matches_the_one_character_kernel(monkeypatch, name):
     poses within 1e-4 m for nearly all, roots moved the same, and every target reached where the kernel reaches it."""
     rig = RIGS[name]()
     n = 6 * settings.general_lanes() + 3
-    out = []
-    for lanes in (True, False):
-        monkeypatch.setattr(settings, "general_lanes", settings.general_lanes if lanes else (lambda: 0))
+
+    def run():
         crowd, targets, weights, orient = _case(rig, n, seed=17)
         rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, root_weight=0.5,
                           max_iterations=8, tolerance=1e-3)
-        out.append((rep, crowd.joint_positions(), crowd.roots()[0]))
-    monkeypatch.undo()
-    (a, pa, ra), (b, pb, rb) = out
+        return rep, crowd.joint_positions(), crowd.roots()[0]
+
+    (a, pa, ra), (b, pb, rb) = _on_both(monkeypatch, run)
     assert a.iterations.max() > 2 and np.abs(ra - _case(rig, n, seed=17)[0].roots()[0]).max() > 0.01
     assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
     d = np.abs(pa - pb).max(axis=(1, 2))
