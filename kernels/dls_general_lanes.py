@@ -1,5 +1,5 @@
 """The general DLS (kernels/dls.py: LM damping, the joint-limit active set, escapes, orientation rows, full rotation
-targets, a free root) with characters as SIMD lanes, for requests without secondary terms.
+targets, a free root, rest / velocity / balance terms in the targets' null space) with characters as SIMD lanes.
 
 As kernels/ccd_lanes.py: each scalar of a character's state is one lane of a ``ti.types.vector(L, ti.f32)``; S
 streams, each a contiguous range of characters whose lanes refill (a lane whose character is done writes its
@@ -18,29 +18,33 @@ that are zero off the diagonal, so its Cholesky factor, back substitution and st
 zero terms; the kernel is compiled without fast math, so every sum runs in the order written and the zero terms
 change no bits (a character alone, with its own layout, gets what it gets in any crowd). J W J^T and J^T y skip
 the columns a block's effector does not move (kernels/dls_lane_system.py). A character's start (its angles from
-its rotations) and its result are handled one lane at a time with the one-character kernel's scalar code.
+its rotations) and its result are handled one lane at a time with the one-character kernel's scalar code. The rows
+are built in kernels/dls_lane_rows.py, the secondary terms' parts in kernels/dls_lane_null.py.
 """
 
 import functools
+from types import SimpleNamespace
 
 import taichi as ti
 
+from crowd_ik.kernels import dls_lane_null
 from crowd_ik.kernels import dls_lane_steps as dl
 from crowd_ik.kernels import dls_lane_system as dsys
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.compile_settings import compiled_with
 from crowd_ik.kernels.dls_pose import first_bone
+from crowd_ik.kernels.dls_lane_rows import row_builder
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
-
-SCRATCH_BYTES = 64 << 20  # a kernel's stream scratch at most this (fewer streams for a big rig), see max_streams
 from crowd_ik.kernels.quat import joint_angles, yaw_quat
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.solvers.settings import (
-    DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_LAM_CAP as LAM_CAP, DLS_MAX_ESCAPES as MAX_ESCAPES,
-    DLS_ORI_CLAMP as ORI_CLAMP, DLS_PROGRESS as PROGRESS,
+    DLS_DAMPING_MIN as DAMPING_MIN, DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_LAM_CAP as LAM_CAP,
+    DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_NULL_BAND as NULL_BAND, DLS_NULL_STEP as NULL_STEP, DLS_PROGRESS as PROGRESS,
     DLS_STALL_AFTER as STALL_AFTER, DLS_WINDOW as WINDOW,
 )
+
+SCRATCH_BYTES = 64 << 20  # a kernel's stream scratch at most this (fewer streams for a big rig), see max_streams
 
 ndarray = ti.types.ndarray
 vec3 = ti.math.vec3
@@ -48,31 +52,33 @@ vec4 = ti.math.vec4
 ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
 
 
-def max_streams(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int) -> int:
+def max_streams(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, sec: bool = False) -> int:
     """The streams general_solver's scratch holds: lane_plan.MAX_STREAMS, fewer where that would pass SCRATCH_BYTES
     (a big imported rig: a humanoid's 256 streams take about 34 MB), at least 8."""
-    per_stream = 4 * L * (20 * max_joints + 8 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows)
-                          + 12 * max_effectors + 3)
+    per_stream = 4 * L * (20 * max_joints + 11 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows)
+                          + 12 * max_effectors + 3 + sec * dls_lane_null.per_stream_values(max_joints, max_cols, max_rows))
     return max(8, min(MAX_STREAMS, SCRATCH_BYTES // per_stream))
 
 
 @functools.cache
 def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, rot: bool = False,
-                   free_root: bool = False):
+                   free_root: bool = False, sec: bool = False):
     """The kernel for L lanes per stream and scratch of max_joints, max_cols (DOFs + 1), max_rows and max_effectors
     per stream: l* (local rotations), b* (their backup before a step), v* (saved before an escape kick), p*
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
-    save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr); the system's jac (rows x
-    columns), sys (its Cholesky factor), e0 (the aimed error), yv (the solution), ga (J^T yv); per effector t*
+    save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr), da* (world axes); the
+    system's jac (rows x columns), sys (its Cholesky factor), e0 (the aimed error), yv (the solution), ga (J^T yv); per
+    effector t*
     (target relative to the root, or in the world with a free root; weight), o* (orientation target), tq* (with `rot`:
     the rotation target and its weight tqk); root* (with `free_root`: root_pos, per stream). Joint row J (max_joints >
-    J) holds the root's yaw rotation at the origin, the parent row of the root joint."""
+    J) holds the root's yaw rotation at the origin, the parent row of the root joint. With `sec` the rest, velocity
+    and balance terms in the null space of the targets (kernels/dls_lane_null.py, with fields of its own)."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
-    S = max_streams(L, max_joints, max_cols, max_rows, max_effectors)
+    S = max_streams(L, max_joints, max_cols, max_rows, max_effectors, sec)
     (lx, ly, lz, lw, bx, by, bz, bw, vx, vy, vz, vw, px, py, pz,
      rx, ry, rz, rw) = lane_rows(L, (S, max_joints), 19)
-    th, thb, ths, st, fr, mp = lane_rows(L, (S, max_cols), 6)
+    th, thb, ths, st, fr, mp, dax, day, daz = lane_rows(L, (S, max_cols), 9)
     e0, yv = lane_rows(L, (S, max_rows), 2)
     (ga,) = lane_rows(L, (S, max_cols), 1)
     (jac,) = lane_rows(L, (S, max_rows, max_cols), 1)
@@ -212,103 +218,6 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         return f, perr, oerr
 
     @ti.func
-    def build(s, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
-              dof_start: ti.template(), eff_joint: ti.template(), eff_axis: ti.template(), eff_lim: ti.template(),
-              eff_rows: ti.template(), length, R, C):
-        """dls_system.build_system without its secondary terms, per lane, into the request's row layout
-        (eff_rows bits: 1 position rows, 2 axis rows and a zero row, 4 rotation rows)."""
-        for r, d in ti.ndrange(R, C):
-            jac[s, r, d] = V(0.0)
-        r = 0
-        for e in range(eff_joint.shape[0]):
-            if eff_rows[e] > 0:
-                sw = ti.sqrt(ti.max(tw[s, e], 0.0))
-                k = eff_joint[e]
-                ex, ey, ez = px[s, k], py[s, k], pz[s, k]
-                reach, dmax = eff_lim[e, 0], eff_lim[e, 1]
-                gx, gy, gz = target(s, e, C)
-                cx, cy, cz = gx - px[s, 0], gy - py[s, 0], gz - pz[s, 0]
-                dist = lm.norm3(cx, cy, cz)
-                far = dist > reach + dmax
-                sc = (reach + dmax) / ti.select(far, dist, 1.0)
-                gx = ti.select(far, px[s, 0] + cx * sc, gx)
-                gy = ti.select(far, py[s, 0] + cy * sc, gy)
-                gz = ti.select(far, pz[s, 0] + cz * sc, gz)
-                dx, dy, dz = gx - ex, gy - ey, gz - ez
-                dn = lm.norm3(dx, dy, dz)
-                big = dn > dmax
-                dc = dmax / ti.select(big, dn, 1.0)
-                e0[s, r] = sw * ti.select(big, dx * dc, dx)
-                e0[s, r + 1] = sw * ti.select(big, dy * dc, dy)
-                e0[s, r + 2] = sw * ti.select(big, dz * dc, dz)
-                if ti.static(free_root):  # the whole body translates: identity in the position rows
-                    for c in ti.static(range(3)):
-                        jac[s, r + c, C - 3 + c] = sw
-                ori = tw[s, e] < 0.0  # no lane
-                u1x, u1y, u1z, u2x, u2y, u2z = sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0, sw * 0.0
-                axis_rows = eff_rows[e] & 2
-                rr = r + 3  # the rotation rows (with `rot`): after the position and axis rows
-                if axis_rows != 0:
-                    rr += 3
-                sr = sw * 0.0
-                if ti.static(rot):
-                    if eff_rows[e] & 4:
-                        sr = ti.sqrt(ti.max(tqk[s, e], 0.0))
-                        vx_, vy_, vz_ = dl.qlog(*lm.qmul(tqx[s, e], tqy[s, e], tqz[s, e], tqw[s, e], -rx[s, k],
-                                                        -ry[s, k], -rz[s, k], rw[s, k]))
-                        ang = lm.norm3(vx_, vy_, vz_)
-                        cl = ang > ORI_CLAMP
-                        ac = ORI_CLAMP / ti.select(cl, ang, 1.0)
-                        e0[s, rr] = sr * length * ti.select(cl, vx_ * ac, vx_)
-                        e0[s, rr + 1] = sr * length * ti.select(cl, vy_ * ac, vy_)
-                        e0[s, rr + 2] = sr * length * ti.select(cl, vz_ * ac, vz_)
-                if axis_rows != 0:
-                    ori = ox[s, e] * ox[s, e] + oy[s, e] * oy[s, e] + oz[s, e] * oz[s, e] > 0.0
-                    a = eff_axis[e]
-                    ax, ay, az = lm.normalized(*lm.qrot(rx[s, k], ry[s, k], rz[s, k], rw[s, k], a.x, a.y, a.z))
-                    wx, wy, wz = dl.swing_vector(ax, ay, az, ox[s, e], oy[s, e], oz[s, e])
-                    ang = lm.norm3(wx, wy, wz)
-                    cl = ang > ORI_CLAMP
-                    ac = ORI_CLAMP / ti.select(cl, ang, 1.0)
-                    wx, wy, wz = ti.select(cl, wx * ac, wx), ti.select(cl, wy * ac, wy), ti.select(cl, wz * ac, wz)
-                    u1x, u1y, u1z = dl.perpendicular(ax, ay, az)
-                    u2x, u2y, u2z = lm.cross(ax, ay, az, u1x, u1y, u1z)
-                    e0[s, r + 3] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z), 0.0)
-                    e0[s, r + 4] = ti.select(ori, sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z), 0.0)
-                n = k
-                while n >= 0:
-                    kd = kind[n]
-                    if kd > 0:
-                        d0 = dof_start[n]
-                        ax, ay, az, aw = parent_rot(s, n, parent)
-                        t1 = th[s, d0]
-                        if kd >= 2:
-                            t1 = th[s, d0 + 1]
-                        cols = dl.dof_axes(kd, jmode[n] == 1, axes[n, 0], axes[n, 1], ax, ay, az, aw, th[s, d0], t1)
-                        hx, hy, hz = ex - px[s, n], ey - py[s, n], ez - pz[s, n]
-                        for c in ti.static(range(3)):
-                            if c < kd:
-                                wx, wy, wz = cols[3 * c], cols[3 * c + 1], cols[3 * c + 2]
-                                qx, qy, qz = lm.cross(wx, wy, wz, hx, hy, hz)
-                                jac[s, r, d0 + c] = sw * qx
-                                jac[s, r + 1, d0 + c] = sw * qy
-                                jac[s, r + 2, d0 + c] = sw * qz
-                                if axis_rows != 0:
-                                    a1 = sw * length * lm.dot3(wx, wy, wz, u1x, u1y, u1z)
-                                    a2 = sw * length * lm.dot3(wx, wy, wz, u2x, u2y, u2z)
-                                    jac[s, r + 3, d0 + c] = ti.select(ori, a1, 0.0)
-                                    jac[s, r + 4, d0 + c] = ti.select(ori, a2, 0.0)
-                                if ti.static(rot):
-                                    if eff_rows[e] & 4:
-                                        jac[s, rr, d0 + c] = sr * length * wx
-                                        jac[s, rr + 1, d0 + c] = sr * length * wy
-                                        jac[s, rr + 2, d0 + c] = sr * length * wz
-                    n = parent[n]
-                r = rr
-                if eff_rows[e] & 4:
-                    r += 3
-
-    @ti.func
     def restore(s, on, J, C):
         """The pose before the step (thb, b*) back in the lanes `on`."""
         for d in range(C):
@@ -332,6 +241,12 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             lx[s, j], ly[s, j], lz[s, j], lw[s, j] = ti.select(back, sx, qx), ti.select(back, sy, qy), \
                 ti.select(back, sz, qz), ti.select(back, sw, qw)
 
+    F = SimpleNamespace(V=V, lx=lx, ly=ly, lz=lz, lw=lw, px=px, py=py, pz=pz, rx=rx, ry=ry, rz=rz, rw=rw, th=th, st=st,
+                        fr=fr, mp=mp, dax=dax, day=day, daz=daz, e0=e0, yv=yv, ga=ga, jac=jac, sys=sys, tw=tw, ox=ox, oy=oy, oz=oz, tqx=tqx,
+                        tqy=tqy, tqz=tqz, tqw=tqw, tqk=tqk, target=target, parent_rot=parent_rot)
+    build = row_builder(F, rot, free_root)
+    null = dls_lane_null.secondary(F, S, max_joints, max_cols, max_rows) if sec else None
+
     @compiled_with(fast_math=False)  # sums in the order written: zero rows change no bits (see the docstring)
     @ti.kernel
     def solve(
@@ -343,12 +258,12 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         eff_axis: ndarray(dtype=vec3, ndim=1), eff_has_axis: ndarray(dtype=ti.i32, ndim=1), eff_lim: ndarray(ndim=2),
         eff_rows: ndarray(dtype=ti.i32, ndim=1), grp_eff: ndarray(dtype=ti.i32, ndim=1),
         run_count: ndarray(dtype=ti.i32, ndim=2), runs: ndarray(dtype=ti.i32, ndim=4),
-        joint_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
+        joint_w: ndarray(ndim=1), com_w: ndarray(ndim=1), support_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
         root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2), world_pos: ndarray(dtype=vec3, ndim=2),
         world_rot: ndarray(dtype=vec4, ndim=2), targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2),
         orient: ndarray(dtype=vec3, ndim=2), rot_t: ndarray(dtype=vec4, ndim=2), rot_w: ndarray(ndim=2),
         n_groups: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
-        tolerance: ti.f32, damping: ti.f32, length: ti.f32, error: ndarray(ndim=1),
+        tolerance: ti.f32, damping: ti.f32, length: ti.f32, rest_w: ti.f32, vel_w: ti.f32, bal_w: ti.f32, error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1), stalled: ndarray(dtype=ti.i32, ndim=1),
     ):
         """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0, or with `rot` extra
@@ -364,6 +279,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         G = n_groups
         R = 3 * G
         max_attempts = 2 * max_iterations + 8
+        mu2 = (DAMPING_MIN * length) * (DAMPING_MIN * length)  # the null-space projector's damping
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
@@ -372,9 +288,11 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             cur = Vi(-1)  # each lane's character, -1 for none
             live = V(0.0)
             pending = V(1.0)  # lanes to hand their character's result out and take the next one
-            # dls_solve's per-character state, one lane each: (f, perr, oerr) the objective, (sf, sperr, soerr) and
-            # s_acc the pose saved before a kick
+            # dls_solve's per-character state, one lane each: (f, perr, oerr, sv, o4) the objective (dls_system:
+            # F, max position error, max(orientation error, balance error), S, orientation error), (sf, sperr, soerr,
+            # ssv, so4) and s_acc the pose saved before a kick; zon 0 once the secondary terms are dropped
             f, perr, oerr, sf, sperr, soerr = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
+            sv, o4, ssv, so4, ref_s, zon = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
             lam, accepted, attempts, bad, stop, failed = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
             first, kick, esc, esc_left, escapes, s_acc = V(0.0), V(0.0), V(0.0), V(0.0), V(0.0), V(0.0)
             ref_f, ref_acc = V(0.0), V(0.0)
@@ -432,21 +350,36 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                                     tqk[s, e][l] = rot_w[i, e]
                             f[l], perr[l], oerr[l], lam[l], accepted[l], attempts[l] = 0.0, 0.0, 0.0, damping, 0.0, 0.0
                             bad[l], stop[l], failed[l], first[l], kick[l], esc[l] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0
-                            esc_left[l], escapes[l], ref_f[l], ref_acc[l] = 0.0, 0.0, 0.0, 0.0
+                            esc_left[l], escapes[l], ref_f[l], ref_acc[l], zon[l] = 0.0, 0.0, 0.0, 0.0, 1.0
                 pending = V(0.0)
                 if live.max() > 0.0:
                     go = live > 0.0
                     apply_step(s, go, parent, offset, kind, jmode, axes, lo, hi, lim_p, lim_h, cone, dof_start,
                                child_start, child_list, C)
-                    nf, npe, noe = objective(s, eff_joint, eff_axis, eff_has_axis, eff_lim, length, C)
                     fst = go & (first > 0.0)
+                    nf, npe, no4 = objective(s, eff_joint, eff_axis, eff_has_axis, eff_lim, length, C)
+                    nsv, noe = nf * 0.0, no4
+                    if ti.static(sec):
+                        if lm.any_lane(fst):  # the projected start pose is the velocity term's reference
+                            null.start(s, fst, J, C)
+                        nsv, nbe = null.terms(s, parent, kind, jmode, dof_start, com_w, support_w, rest_w, vel_w,
+                                              bal_w)
+                        noe = ti.max(no4, nbe)
                     kck = go & (first == 0.0) & (kick > 0.0)
                     nrm = go & (first == 0.0) & (kick == 0.0)
-                    acc = nrm & (nf < f) & (failed == 0.0)
-                    rej = nrm & (acc == 0)
+                    better = nf < f
                     flat = f - nf < FLAT * f
+                    band = NULL_BAND * tolerance
+                    in_band = (npe <= band) & (no4 <= band)
+                    if ti.static(sec):  # also taken when S falls while every target error stays in the band
+                        better = better | ((nsv < sv) & in_band)
+                        flat = flat & (sv - nsv < FLAT * sv)
+                    acc = nrm & better & (failed == 0.0)
+                    rej = nrm & (acc == 0)
                     take = fst | kck | acc
                     f, perr, oerr = ti.select(take, nf, f), ti.select(take, npe, perr), ti.select(take, noe, oerr)
+                    sv, o4 = ti.select(take, nsv, sv), ti.select(take, no4, o4)
+                    zon = ti.select(acc & in_band, 1.0, zon)  # back in the band: the secondary step resumes
                     first = ti.select(fst, 0.0, first)
                     accepted = ti.select(kck | acc, accepted + 1.0, accepted)
                     lam = ti.select(kck, damping, ti.select(acc, ti.max(0.5 * lam, damping),
@@ -455,9 +388,13 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     kick = ti.select(kck, 0.0, kick)
                     esc_left = ti.select(kck, ESCAPES_F, esc_left)
                     esc = ti.select(kck, 1.0, esc)
-                    win = acc & (accepted - ref_acc >= WINDOW)  # too slow: F fell by less than PROGRESS
-                    bad = ti.select(win & (f > (1.0 - PROGRESS) * ref_f), STALL_F, bad)
+                    win = acc & (accepted - ref_acc >= WINDOW)  # too slow: F (and S) fell by less than PROGRESS
+                    slow = f > (1.0 - PROGRESS) * ref_f
+                    if ti.static(sec):  # S's progress counts once the targets are within tolerance
+                        slow = slow & ((sv >= (1.0 - PROGRESS) * ref_s) | (perr > tolerance) | (o4 > tolerance))
+                    bad = ti.select(win & slow, STALL_F, bad)
                     ref_f = ti.select(fst | kck | win, f, ref_f)
+                    ref_s = ti.select(fst | kck | win, sv, ref_s)
                     ref_acc = ti.select(kck | win, accepted, ref_acc)
                     if lm.any_lane(rej):
                         restore(s, rej, J, C)
@@ -467,14 +404,21 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     stall = go & ((bad >= STALL_AFTER) | (lam > LAM_CAP * length))
                     stop = ti.select(stall, 1.0, stop)
                     back = stall & (esc > 0.0)
-                    try_kick = stall & (esc == 0.0) & (escapes < MAX_ESCAPES)
+                    # the secondary step held the targets off: go on with the targets alone
+                    drop = stall & (back == 0) & (zon > 0.0) & ((perr > tolerance) | (o4 > tolerance))
+                    if ti.static(not sec):
+                        drop = drop & (drop == 0)
+                    zon = ti.select(drop, 0.0, zon)
+                    bad, lam, stop = ti.select(drop, 0.0, bad), ti.select(drop, damping, lam), ti.select(drop, 0.0, stop)
+                    try_kick = stall & (esc == 0.0) & (drop == 0) & (escapes < MAX_ESCAPES)
                     kicked = try_kick & (try_kick == 0)
                     if lm.any_lane(try_kick):
                         kicked = try_kick & (dsys.kick_step(s, try_kick, parent, kind, jmode, lo, hi, dof_start,
                                                             joint_w, C, th, st, fr) > 0.0)
                     sf, sperr, soerr = ti.select(kicked, f, sf), ti.select(kicked, perr, sperr), \
                         ti.select(kicked, oerr, soerr)
-                    s_acc = ti.select(kicked, accepted, s_acc)
+                    ssv, so4, s_acc = ti.select(kicked, sv, ssv), ti.select(kicked, o4, so4), \
+                        ti.select(kicked, accepted, s_acc)
                     kick = ti.select(kicked, 1.0, kick)
                     escapes = ti.select(kicked, escapes + 1.0, escapes)
                     bad = ti.select(kicked, 0.0, bad)
@@ -490,9 +434,11 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     if lm.any_lane(kicked | back):
                         save_or_back(s, kicked, back, J, C)
                     f, perr, oerr = ti.select(back, sf, f), ti.select(back, sperr, perr), ti.select(back, soerr, oerr)
+                    sv, o4 = ti.select(back, ssv, sv), ti.select(back, so4, o4)
                     accepted = ti.select(back, s_acc, accepted)
                     esc = ti.select(back, 0.0, esc)
                     ref_f = ti.select(back, f, ref_f)
+                    ref_s = ti.select(back, sv, ref_s)
                     ref_acc = ti.select(back, accepted, ref_acc)
                     if lm.any_lane(rej | back):
                         fk(s, rej | back, parent, offset)
@@ -504,6 +450,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     if lm.any_lane(building):
                         build(s, parent, kind, jmode, axes, dof_start, eff_joint, eff_axis, eff_lim, eff_rows, length,
                               R, C)
+                        if ti.static(sec):
+                            null.rows(s, parent, kind, jmode, axes, dof_start, com_w, support_w, rest_w, vel_w, bal_w,
+                                      C)
                         for d in range(C):
                             fr[s, d] = ti.select(building, 1.0, fr[s, d])
                         failed = ti.select(building, 0.0, failed)
@@ -511,8 +460,13 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                         rounds = 0
                         while frozen.max() > 0.0 and rounds <= C:
                             act = frozen > 0.0
-                            ok = dsys.solve_step(s, act, lam * lam, joint_w, grp_eff, run_count, runs, G, C, jac, sys,
-                                                 e0, yv, mp, fr, ga, st)
+                            ok = act * 0.0
+                            if ti.static(sec):
+                                ok = null.step(s, act, lam * lam, mu2, zon * NULL_STEP * damping / lam, rest_w, vel_w,
+                                               bal_w, joint_w, grp_eff, run_count, runs, G, C)
+                            else:
+                                ok = dsys.solve_step(s, act, lam * lam, joint_w, grp_eff, run_count, runs, G, C, jac,
+                                                     sys, e0, yv, mp, fr, ga, st)
                             failed = ti.select(act, 1.0 - ok, failed)
                             frozen = ti.select(act, dsys.freeze_outward(s, act, parent, kind, jmode, lo, hi, dof_start,
                                                                              th, st, fr), 0.0)

@@ -1,7 +1,8 @@
-"""The general DLS lanes' linear algebra and active set (kernels/dls_general_lanes.py): the damped step by Cholesky
-over blocks of three rows, the DOFs frozen on a limit, and the escape kick, per lane of a stream's field rows (passed
-as template arguments; the module creates no Taichi state). Each is its twin in kernels/dls_system.py or
-kernels/dls.py with every scalar a lane of a ``ti.types.vector(L, ti.f32)``."""
+"""The general DLS lanes' linear algebra and active set (kernels/dls_general_lanes.py, kernels/dls_lane_null.py):
+J M J^T, its Cholesky factor, back substitution and the products with J and J^T over blocks of three rows, the
+damped step, the DOFs frozen on a limit, and the escape kick, per lane of a stream's field rows (passed as template
+arguments; the module creates no Taichi state). Each is its twin in kernels/dls_system.py or kernels/dls.py with
+every scalar a lane of a ``ti.types.vector(L, ti.f32)``."""
 
 import taichi as ti
 
@@ -9,20 +10,13 @@ from crowd_ik.solvers.settings import DLS_KICK as KICK, DLS_LIMIT_EPS as LIMIT_E
 
 
 @ti.func
-def solve_step(s, act, lam2, joint_w: ti.template(), grp_eff: ti.template(), run_count: ti.template(),
-               runs: ti.template(), G, C, jac: ti.template(), sys: ti.template(), e0: ti.template(), yv: ti.template(),
-               mp: ti.template(), fr: ti.template(), ga: ti.template(), st: ti.template()):
-    """dls_system.solve_step without secondary terms, per lane: st = W J^T (J W J^T + lam^2 I)^-1 e0 in the lanes
-    act (W = joint weight times fr); returns 1 per lane, 0 where the float32 Cholesky failed. The R = 3 G rows are
-    G blocks of three, each one effector's (grp_eff); J W J^T is built a pair of blocks at a time over the runs
-    of columns both effectors move (runs), and J^T y a block at a time over its effector's runs: the other terms
-    are zero, and each sum takes its terms in the same order."""
-    R = 3 * G
+def products(s, mu2, grp_eff: ti.template(), run_count: ti.template(), runs: ti.template(), G, jac: ti.template(),
+             sys: ti.template(), mp: ti.template()):
+    """The lower triangle of J M J^T + mu^2 I into sys (dls_system.factor's products), M = diag(mp). The R = 3 G rows
+    are G blocks of three, each one effector's (grp_eff); a pair of blocks is summed over the runs of columns both
+    effectors move (runs): the other terms are zero, and each sum takes its terms in the same order."""
     zero = ti.Vector.zero(ti.f32, ti.static(mp.n))
-    for d in range(C):
-        mp[s, d] = joint_w[d] * fr[s, d]
-        ga[s, d] = zero
-    for g in range(G):  # dls_system.factor's products
+    for g in range(G):
         for h in range(g + 1):
             a, b = grp_eff[g], grp_eff[h]
             r, c = 3 * g, 3 * h
@@ -43,17 +37,23 @@ def solve_step(s, act, lam2, joint_w: ti.template(), grp_eff: ti.template(), run
                     a21 += t2 * b1
                     a22 += t2 * b2
             if g == h:
-                sys[s, r, c] = a00 + lam2
+                sys[s, r, c] = a00 + mu2
                 sys[s, r + 1, c] = a10
-                sys[s, r + 1, c + 1] = a11 + lam2
+                sys[s, r + 1, c + 1] = a11 + mu2
                 sys[s, r + 2, c] = a20
                 sys[s, r + 2, c + 1] = a21
-                sys[s, r + 2, c + 2] = a22 + lam2
+                sys[s, r + 2, c + 2] = a22 + mu2
             else:
                 sys[s, r, c], sys[s, r, c + 1], sys[s, r, c + 2] = a00, a01, a02
                 sys[s, r + 1, c], sys[s, r + 1, c + 1], sys[s, r + 1, c + 2] = a10, a11, a12
                 sys[s, r + 2, c], sys[s, r + 2, c + 1], sys[s, r + 2, c + 2] = a20, a21, a22
-    ok = zero + 1.0
+
+
+@ti.func
+def cholesky(s, R, sys: ti.template()):
+    """sys's lower triangle (R rows) in place by its Cholesky factor (dls_system.factor); 1 per lane, 0 where round-off
+    made it not positive definite."""
+    ok = ti.Vector.zero(ti.f32, ti.static(sys.n)) + 1.0
     for c in range(R):
         v = sys[s, c, c]
         for k in range(c):
@@ -67,27 +67,78 @@ def solve_step(s, act, lam2, joint_w: ti.template(), grp_eff: ti.template(), run
             for k in range(c):
                 x -= sys[s, r, k] * sys[s, c, k]
             sys[s, r, c] = x / lc
-    for r in range(R):  # dls_system.back_solve: L z = b, then L^T y = z
-        x = e0[s, r]
+    return ok
+
+
+@ti.func
+def back_solve(s, R, sys: ti.template(), y: ti.template()):
+    """y <- (L L^T)^-1 y in place, L the factor in sys (dls_system.back_solve)."""
+    for r in range(R):  # L z = b
+        x = y[s, r]
         for k in range(r):
-            x -= sys[s, r, k] * yv[s, k]
-        yv[s, r] = x / sys[s, r, r]
-    for rr in range(R):
+            x -= sys[s, r, k] * y[s, k]
+        y[s, r] = x / sys[s, r, r]
+    for rr in range(R):  # L^T y = z
         r = R - 1 - rr
-        x = yv[s, r]
+        x = y[s, r]
         for k in range(r + 1, R):
-            x -= sys[s, k, r] * yv[s, k]
-        yv[s, r] = x / sys[s, r, r]
-    for g in range(G):  # J^T y, each column's sum over the blocks in row order
+            x -= sys[s, k, r] * y[s, k]
+        y[s, r] = x / sys[s, r, r]
+
+
+@ti.func
+def transpose_times(s, grp_eff: ti.template(), run_count: ti.template(), runs: ti.template(), G, C,
+                    jac: ti.template(), y: ti.template(), out: ti.template()):
+    """out = J^T y over the C columns: each column's sum over the blocks in row order, a block over its effector's
+    runs."""
+    for d in range(C):
+        out[s, d] = ti.Vector.zero(ti.f32, ti.static(out.n))
+    for g in range(G):
         a = grp_eff[g]
         r = 3 * g
-        y0, y1, y2 = yv[s, r], yv[s, r + 1], yv[s, r + 2]
+        y0, y1, y2 = y[s, r], y[s, r + 1], y[s, r + 2]
         for q in range(run_count[a, a]):
             for d in range(runs[a, a, q, 0], runs[a, a, q, 1]):
-                ga[s, d] = ga[s, d] + jac[s, r, d] * y0 + jac[s, r + 1, d] * y1 + jac[s, r + 2, d] * y2
+                out[s, d] = out[s, d] + jac[s, r, d] * y0 + jac[s, r + 1, d] * y1 + jac[s, r + 2, d] * y2
+
+
+@ti.func
+def times(s, grp_eff: ti.template(), run_count: ti.template(), runs: ti.template(), G, jac: ti.template(),
+          x: ti.template(), out: ti.template()):
+    """out = J x over the R = 3 G rows, a block's rows over its effector's runs."""
+    for g in range(G):
+        a = grp_eff[g]
+        r = 3 * g
+        zero = ti.Vector.zero(ti.f32, ti.static(out.n))
+        o0, o1, o2 = zero, zero, zero
+        for q in range(run_count[a, a]):
+            for d in range(runs[a, a, q, 0], runs[a, a, q, 1]):
+                v = x[s, d]
+                o0 += jac[s, r, d] * v
+                o1 += jac[s, r + 1, d] * v
+                o2 += jac[s, r + 2, d] * v
+        out[s, r], out[s, r + 1], out[s, r + 2] = o0, o1, o2
+
+
+@ti.func
+def solve_step(s, act, lam2, joint_w: ti.template(), grp_eff: ti.template(), run_count: ti.template(),
+               runs: ti.template(), G, C, jac: ti.template(), sys: ti.template(), e0: ti.template(), yv: ti.template(),
+               mp: ti.template(), fr: ti.template(), ga: ti.template(), st: ti.template()):
+    """dls_system.solve_step without secondary terms, per lane: st = W J^T (J W J^T + lam^2 I)^-1 e0 in the lanes
+    act (W = joint weight times fr); returns 1 per lane, 0 where the float32 Cholesky failed."""
+    R = 3 * G
+    for d in range(C):
+        mp[s, d] = joint_w[d] * fr[s, d]
+    products(s, lam2, grp_eff, run_count, runs, G, jac, sys, mp)
+    ok = cholesky(s, R, sys)
+    for r in range(R):
+        yv[s, r] = e0[s, r]
+    back_solve(s, R, sys, yv)
+    transpose_times(s, grp_eff, run_count, runs, G, C, jac, yv, ga)
     for d in range(C):
         st[s, d] = ti.select(act, mp[s, d] * ga[s, d], st[s, d])
     return ok
+
 
 @ti.func
 def freeze_outward(s, act, parent: ti.template(), kind: ti.template(), jmode: ti.template(), lo: ti.template(),

@@ -254,20 +254,70 @@ def test_a_free_root_matches_the_one_character_kernel(monkeypatch, name):
     assert np.mean(np.abs(ra - rb).max(axis=1) <= 1e-4) >= 0.95
 
 
-def test_lanes_only_for_requests_without_the_extra_terms(monkeypatch):
-    """Plain requests (limits, orientation targets, per-character weights), full rotation targets and a free root
-    take the lanes; rest, velocity or balance terms keep the one-character kernel."""
+def test_every_request_takes_the_lanes(monkeypatch):
+    """Plain requests (limits, orientation targets, per-character weights), full rotation targets, a free root, and
+    rest, velocity or balance terms (with a free root too) all take the lanes."""
     calls = []
     real = adapter._general_lanes
-    monkeypatch.setattr(adapter, "_general_lanes", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(adapter, "_general_lanes", lambda *a, **k: calls.append(k["sec"]) or real(*a, **k))
     crowd, targets, weights, orient = _case(cik.Rig.humanoid(), 5, seed=1)
     _solve(crowd, targets, weights, orient, 2)
-    assert len(calls) == 1
     rots = np.zeros((5, crowd.rig.n_effectors, 4), np.float32)
     rots[..., 3] = 1.0
     crowd.solve(targets, method="dls", max_iterations=2, rotations=rots)
     crowd.solve(targets, method="dls", max_iterations=2, root_weight=1.0)
-    assert len(calls) == 3
     crowd.solve(targets, method="dls", max_iterations=2, rest_weight=0.01)
     crowd.solve(targets, method="dls", max_iterations=2, balance_weight=0.5, root_weight=1.0)
-    assert len(calls) == 3
+    assert calls == [False, False, False, True, True]
+
+
+SECONDARY = {"humanoid": dict(rest_weight=0.01, velocity_weight=0.02, balance_weight=0.5),
+             "arm": dict(rest_weight=0.05, velocity_weight=0.02)}
+
+
+@pytest.mark.parametrize("name", sorted(SECONDARY))
+def test_secondary_terms_match_the_one_character_kernel(monkeypatch, name):
+    """Rest, velocity and (on the humanoid, which has feet) balance terms in the null space: the same statuses and
+    iterations as the one-character kernel for nearly all, and as close to the float64 twin's poses and iterations as
+    that kernel (after 8 iterations 94 % of the humanoid's poses are within 1e-4 m of the twin's for both, 98 % of the
+    arm's; the two float32 kernels differ from each other a little more than each from the twin)."""
+    rig = RIGS[name]()
+    n = 6 * settings.general_lanes() + 3
+    kw = dict(SECONDARY[name], max_iterations=8, tolerance=1e-3)
+    crowd, targets, weights, orient = _case(rig, n, seed=19)
+    start = (*crowd.roots(), crowd.rotations())
+
+    def run():
+        crowd = _case(rig, n, seed=19)[0]
+        rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, **kw)
+        return rep, crowd.joint_positions()
+
+    (a, pa), (b, pb) = _on_both(monkeypatch, run)
+    twin = dls_solve(rig, *start, targets, weights=weights, orientations=orient, **kw)
+    assert a.iterations.max() > 2
+    assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
+    assert np.mean(np.abs(pa - pb).max(axis=(1, 2)) <= 1e-3) >= 0.9
+    near = [np.mean(np.abs(p - twin[1]).max(axis=(1, 2)) <= 1e-4) for p in (pa, pb)]
+    assert near[0] >= near[1] - 0.03, near
+    agree = [np.mean(r.iterations == twin[3]) for r in (a, b)]
+    assert agree[0] >= agree[1] - 0.03, agree
+
+
+def test_secondary_terms_alone_or_in_a_crowd():
+    """With rest, velocity and balance terms a character alone in a padded packet (its own, smaller row layout) gets
+    its statuses, iterations and pose of the crowd bit for bit."""
+    rig = cik.Rig.humanoid()
+    n = settings.general_lanes() + 3
+    crowd, targets, weights, orient = _case(rig, n, seed=23)
+    start, (roots, yaw) = crowd.rotations(), crowd.roots()
+    crowd.set_rotations(start)  # the start pose as the lone characters get it (read back, bit for bit)
+    kw = dict(SECONDARY["humanoid"], method="dls", max_iterations=12, tolerance=1e-3)
+    rep = crowd.solve(targets, weights=weights, orientations=orient, **kw)
+    pos = crowd.joint_positions()
+    for i in (2, 4):  # 2 weights one effector zero (fewer rows alone)
+        one = cik.Crowd(rig, n=1)
+        one.set_roots(roots[i:i + 1], yaw[i:i + 1])
+        one.set_rotations(start[i:i + 1])
+        r1 = one.solve(targets[i:i + 1], weights=weights[i:i + 1], orientations=orient[i:i + 1], **kw)
+        assert r1.iterations[0] == rep.iterations[i] and r1.status[0] == rep.status[i]
+        np.testing.assert_array_equal(one.joint_positions()[0], pos[i])

@@ -3,8 +3,9 @@
 One position effector on a constraint-free rig with no secondary terms has a closed-form 3 x 3
 system: characters as SIMD lanes (kernels/dls_lanes.py; on CUDA one per thread, kernels/dls_free.py).
 Everything else runs the general solve (LM damping, joint-limit active set, orientation rows, rest / velocity /
-balance terms): on the CPU without secondary terms as SIMD lanes (kernels/dls_general_lanes.py, settings.general_lanes'
-width; full rotation targets and a free root in kernels of their own), else one character per thread (kernels/dls.py).
+balance terms): on the CPU as SIMD lanes (kernels/dls_general_lanes.py, settings.general_lanes' width; full rotation
+targets, a free root and the secondary terms in kernels of their own), on CUDA one character per thread
+(kernels/dls.py).
 """
 
 from __future__ import annotations
@@ -46,8 +47,8 @@ def _general(crowd, req) -> None:
         extra |= 4
         C += 3
     cfg, small = _general_settings(crowd, req, C)
-    if not extra & 2 and settings.general_lanes() > 1:
-        _general_lanes(crowd, req, cfg, small)
+    if settings.general_lanes() > 1:
+        _general_lanes(crowd, req, cfg, small, sec=bool(extra & 2))
         return
     prepared(dls.dls_solve)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"],
@@ -140,9 +141,9 @@ def row_groups(layout: np.ndarray) -> np.ndarray:
     return np.repeat(np.arange(len(layout), dtype=np.int32), counts)
 
 
-def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
-    """kernels/dls_general_lanes.py: the general solve without secondary terms (with or without full rotation targets
-    and a free root), characters as SIMD lanes."""
+def _general_lanes(crowd, req, cfg: dict, small: dict, sec: bool) -> None:
+    """kernels/dls_general_lanes.py: the general solve (with or without full rotation targets, a free root and the
+    secondary terms), characters as SIMD lanes."""
     from crowd_ik.kernels import dls_general_lanes, lane_plan
 
     ra, rig, b = crowd.rig_arrays, crowd.rig, crowd.buffers
@@ -160,15 +161,15 @@ def _general_lanes(crowd, req, cfg: dict, small: dict) -> None:
     cap = lane_plan.capacity
     most = (9 if rot else 6) * rig.n_effectors  # at most 3 blocks of three rows per effector with rotation targets
     sizes = (cap(rig.n_joints + 1), cap(C), cap(max(most, 1)), cap(rig.n_effectors))
-    kernel = dls_general_lanes.general_solver(L, *sizes, rot, free_root)
-    streams = min(lane_plan.streams(crowd.n, L), dls_general_lanes.max_streams(L, *sizes))
+    kernel = dls_general_lanes.general_solver(L, *sizes, rot, free_root, sec)
+    streams = min(lane_plan.streams(crowd.n, L), dls_general_lanes.max_streams(L, *sizes, sec))
     prepared(kernel)(
         ra["parent"], ra["offset"], ra["kind"], small["jmode"], ra["axes"], small["lo"], small["hi"], small["lim_p"],
         small["lim_h"], ra["cone"], ra["dof_start"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *rows, *runs, small["joint_w"], *bundles.pose(crowd),
-        *bundles.goal(crowd),
-        *bundles.rotation_goal(crowd), len(groups),
-        streams, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"], *bundles.result(crowd),
+        ra["eff_axis"], ra["eff_has_axis"], small["eff_lim"], *rows, *runs, small["joint_w"], small["com_w"],
+        small["support_w"], *bundles.pose(crowd), *bundles.goal(crowd), *bundles.rotation_goal(crowd), len(groups),
+        streams, req.max_iterations, req.tolerance, cfg["damping"], cfg["length"], req.rest_weight,
+        req.velocity_weight, req.balance_weight, *bundles.result(crowd),
     )
 
 
