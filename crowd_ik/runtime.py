@@ -17,6 +17,10 @@ from crowd_ik.solvers import settings
 _STATE: dict = {}
 
 ARCHES = ("auto", "cpu", "cuda")
+# Taichi's offline cache is LRU-cleaned at exit once it passes this size (Taichi's default 100 MB): crowd_ik's
+# kernels (the lane kernels' variants, the game's, the raster's) take more, so at the default a bench run evicted
+# the render kernels and its next render compiled them again (the arena 6.3 instead of 22 frames/s)
+CACHE_BYTES = 1 << 30
 
 
 class BackendUnavailable(RuntimeError, ValueError):
@@ -149,6 +153,7 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
         arch=ti.cuda if use_cuda else ti.cpu,
         default_fp=ti.f64 if fp == 64 else ti.f32,
         offline_cache=True,
+        offline_cache_max_size_of_files=CACHE_BYTES,
         log_level=ti.WARN,
         # Taichi's control-flow-graph passes: most of a big kernel's cold compile, and LLVM does their work after
         # them; off, except for the kernels kernels/compile_settings.py marks (the raster's).

@@ -54,9 +54,10 @@ ESCAPES_F, STALL_F = float(ESCAPE_ATTEMPTS), float(STALL_AFTER)
 
 def max_streams(L: int, max_joints: int, max_cols: int, max_rows: int, max_effectors: int, sec: bool = False) -> int:
     """The streams general_solver's scratch holds: lane_plan.MAX_STREAMS, fewer where that would pass SCRATCH_BYTES
-    (a big imported rig: a humanoid's 256 streams take about 34 MB), at least 8."""
-    per_stream = 4 * L * (20 * max_joints + 11 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows)
-                          + 12 * max_effectors + 3 + sec * dls_lane_null.per_stream_values(max_joints, max_cols, max_rows))
+    (a big imported rig: a humanoid's 256 streams take about 38 MB, 45 MB with `sec`), at least 8."""
+    values = (20 * max_joints + 11 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows) + 12 * max_effectors
+              + 3 + sec * dls_lane_null.per_stream_values(max_joints, max_cols, max_rows))
+    per_stream = 4 * L * values
     return max(8, min(MAX_STREAMS, SCRATCH_BYTES // per_stream))
 
 
@@ -68,11 +69,11 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     (positions relative to the root), r* (world rotations); per DOF column th (angles), thb, ths (their backup and
     save), st (the step), fr (1 free, 0 frozen by the active set), mp (joint weight times fr), da* (world axes); the
     system's jac (rows x columns), sys (its Cholesky factor), e0 (the aimed error), yv (the solution), ga (J^T yv); per
-    effector t*
-    (target relative to the root, or in the world with a free root; weight), o* (orientation target), tq* (with `rot`:
-    the rotation target and its weight tqk); root* (with `free_root`: root_pos, per stream). Joint row J (max_joints >
-    J) holds the root's yaw rotation at the origin, the parent row of the root joint. With `sec` the rest, velocity
-    and balance terms in the null space of the targets (kernels/dls_lane_null.py, with fields of its own)."""
+    effector t* (target relative to the root, or in the world with a free root; weight), o* (orientation target), tq*
+    (with `rot`: the rotation target and its weight tqk); root* (with `free_root`: root_pos, per stream). Joint row J
+    (max_joints > J) holds the root's yaw rotation at the origin, the parent row of the root joint. With `sec` the
+    rest, velocity and balance terms in the null space of the targets (kernels/dls_lane_null.py, with fields of its
+    own)."""
     V = ti.types.vector(L, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     S = max_streams(L, max_joints, max_cols, max_rows, max_effectors, sec)
@@ -242,8 +243,9 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                 ti.select(back, sz, qz), ti.select(back, sw, qw)
 
     F = SimpleNamespace(V=V, lx=lx, ly=ly, lz=lz, lw=lw, px=px, py=py, pz=pz, rx=rx, ry=ry, rz=rz, rw=rw, th=th, st=st,
-                        fr=fr, mp=mp, dax=dax, day=day, daz=daz, e0=e0, yv=yv, ga=ga, jac=jac, sys=sys, tw=tw, ox=ox, oy=oy, oz=oz, tqx=tqx,
-                        tqy=tqy, tqz=tqz, tqw=tqw, tqk=tqk, target=target, parent_rot=parent_rot)
+                        fr=fr, mp=mp, dax=dax, day=day, daz=daz, e0=e0, yv=yv, ga=ga, jac=jac, sys=sys, tw=tw, ox=ox,
+                        oy=oy, oz=oz, tqx=tqx, tqy=tqy, tqz=tqz, tqw=tqw, tqk=tqk, target=target,
+                        parent_rot=parent_rot)  # what the row builder and the secondary terms read and write
     build = row_builder(F, rot, free_root)
     null = dls_lane_null.secondary(F, S, max_joints, max_cols, max_rows) if sec else None
 
@@ -258,17 +260,20 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         eff_axis: ndarray(dtype=vec3, ndim=1), eff_has_axis: ndarray(dtype=ti.i32, ndim=1), eff_lim: ndarray(ndim=2),
         eff_rows: ndarray(dtype=ti.i32, ndim=1), grp_eff: ndarray(dtype=ti.i32, ndim=1),
         run_count: ndarray(dtype=ti.i32, ndim=2), runs: ndarray(dtype=ti.i32, ndim=4),
-        joint_w: ndarray(ndim=1), com_w: ndarray(ndim=1), support_w: ndarray(ndim=1), root_pos: ndarray(dtype=vec3, ndim=1),
+        joint_w: ndarray(ndim=1), com_w: ndarray(ndim=1), support_w: ndarray(ndim=1),
+        root_pos: ndarray(dtype=vec3, ndim=1),
         root_yaw: ndarray(ndim=1), local_rot: ndarray(dtype=vec4, ndim=2), world_pos: ndarray(dtype=vec3, ndim=2),
         world_rot: ndarray(dtype=vec4, ndim=2), targets: ndarray(dtype=vec3, ndim=2), weights: ndarray(ndim=2),
         orient: ndarray(dtype=vec3, ndim=2), rot_t: ndarray(dtype=vec4, ndim=2), rot_w: ndarray(ndim=2),
         n_groups: ti.i32, n_streams: ti.i32, max_iterations: ti.i32,
-        tolerance: ti.f32, damping: ti.f32, length: ti.f32, rest_w: ti.f32, vel_w: ti.f32, bal_w: ti.f32, error: ndarray(ndim=1),
+        tolerance: ti.f32, damping: ti.f32, length: ti.f32, rest_w: ti.f32, vel_w: ti.f32, bal_w: ti.f32,
+        error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1), stalled: ndarray(dtype=ti.i32, ndim=1),
     ):
         """Solve the N = root_pos.shape[0] characters in place as dls.dls_solve does with extra = 0, or with `rot` extra
-        = 1 (full rotation targets rot_t (N, E, 4) weighted by rot_w (N, E); not read without `rot`). Rig and settings
-        as there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout, bits: 1 its 3 position rows, 2 its
+        bit 1 (full rotation targets rot_t (N, E, 4) weighted by rot_w (N, E); not read without `rot`), `free_root`
+        bit 4, `sec` bit 2 (rest_w, vel_w, bal_w, com_w, support_w; not read without `sec`). Rig and settings as
+        there (joint_w (C,): C = DOFs + 1 columns); eff_rows (E,) the row layout, bits: 1 its 3 position rows, 2 its
         2 axis rows and a zero row, 4 its 3 rotation rows (0: no rows, no character weights the effector); n_groups =
         R / 3 blocks of three rows, grp_eff (n_groups,) each block's effector; run_count (E, E), runs (E, E, K, 2) the
         runs [start, end) of DOF columns two effectors' paths share (solvers/dls.shared_runs)."""
@@ -409,7 +414,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     if ti.static(not sec):
                         drop = drop & (drop == 0)
                     zon = ti.select(drop, 0.0, zon)
-                    bad, lam, stop = ti.select(drop, 0.0, bad), ti.select(drop, damping, lam), ti.select(drop, 0.0, stop)
+                    bad, lam = ti.select(drop, 0.0, bad), ti.select(drop, damping, lam)
+                    stop = ti.select(drop, 0.0, stop)
                     try_kick = stall & (esc == 0.0) & (drop == 0) & (escapes < MAX_ESCAPES)
                     kicked = try_kick & (try_kick == 0)
                     if lm.any_lane(try_kick):

@@ -1,7 +1,7 @@
 """The general DLS lanes' rows (kernels/dls_general_lanes.py): dls_system.build_system without its secondary terms,
 per lane, into the request's row layout: the aimed error e0 and the Jacobian jac of a stream's lanes. A factory
-over the kernel's stream fields (no Taichi state of its own). Each DOF column's world axis is computed once per build into da*, for every
-effector's walk to the root (and the balance rows of kernels/dls_lane_null.py)."""
+over the kernel's stream fields (no Taichi state of its own). Each DOF column's world axis is computed once per
+build into da*, for every effector's walk to the root (and the balance rows of kernels/dls_lane_null.py)."""
 
 import taichi as ti
 

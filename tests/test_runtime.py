@@ -15,6 +15,17 @@ def test_init_is_idempotent_and_reports_cpu():
     assert runtime.current()["arch"] == "cpu"
 
 
+def test_the_offline_cache_holds_every_kernel():
+    """Taichi cleans its offline cache down at exit once it passes offline_cache_max_size_of_files (100 MB by
+    default, less than crowd_ik's kernels take): the limit is raised so that a bench or test run does not evict the
+    kernels the next command needs."""
+    import taichi as ti
+
+    crowd_ik.init(arch="cpu")
+    cfg = ti.lang.impl.current_cfg()
+    assert cfg.offline_cache and cfg.offline_cache_max_size_of_files == runtime.CACHE_BYTES >= 1 << 30
+
+
 def test_switching_arch_raises():
     with pytest.raises(RuntimeError, match="already running on cpu"):
         crowd_ik.init(arch="cuda")
