@@ -161,8 +161,10 @@ def free_solver(L: int, max_joints: int):
         error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1),
         stalled: ndarray(dtype=ti.i32, ndim=1),
+        serial: ti.template(),
     ):
-        """dls_free.dls_solve_free, lane-packed: the same arguments (n_streams streams instead of n_joints)."""
+        """dls_free.dls_solve_free, lane-packed: the same arguments (n_streams streams instead of n_joints); serial:
+        the streams on the launching thread (kernels/serial_loops.py; the same results)."""
         N = root_pos.shape[0]
         J = parent.shape[0]
         k = eff_joint[0]
@@ -170,6 +172,7 @@ def free_solver(L: int, max_joints: int):
         dmax = eff_lim[0, 1]
         max_attempts = 2 * max_iterations + 8
         stride = spread_stride(n_streams)
+        ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue

@@ -78,13 +78,16 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1),
         stalled: ndarray(dtype=ti.i32, ndim=1),
+        serial: ti.template(),
     ):
         """Move the N = world_pos.shape[0] characters' joints; error, iterations, stalled (N,) as fabrik_solve
-        (the error before the rotations are recovered)."""
+        (the error before the rotations are recovered). serial: the streams on the launching thread
+        (kernels/serial_loops.py; the same results)."""
         N = world_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
         stride = spread_stride(n_streams)
+        ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue
@@ -255,13 +258,16 @@ def free_recover(L: int, max_joints: int):
         n_streams: ti.i32,
         error: ndarray(ndim=1),
         iterations: ndarray(dtype=ti.i32, ndim=1),
+        serial: ti.template(),
     ):
-        """The characters that iterated get the rotations of their proposals, FK and that pose's error."""
+        """The characters that iterated get the rotations of their proposals, FK and that pose's error (serial as in
+        the solve kernel)."""
         N = root_pos.shape[0]
         J = parent.shape[0]
         E = eff_joint.shape[0]
         P = gx.shape[0]
         stride = spread_stride(n_streams)
+        ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
             if slot % stride != 0:
                 continue

@@ -126,18 +126,18 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
     # with the default stream count first: at one lane (CUDA) the batch above ran the general kernel instead
     # (solvers/fabrik.py), so there the lane kernels' own default result is the reference
     reference = None
-    for streams in (lane_plan.streams(n, LP), 1, 2):
+    for streams, serial in ((lane_plan.streams(n, LP), False), (1, False), (2, True)):
         crowd.set_angles(angles)
         crowd.buffers.targets[...] = targets
         crowd.buffers.weights[...] = weights
         proposals = [ti.ndarray(V, shape=(P, J)) for _ in range(3)]
         fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
             ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
-            streams, *proposals, 40, 1e-4, *bundles.result(crowd))
+            streams, *proposals, 40, 1e-4, *bundles.result(crowd), serial)
         fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
             ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
             *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, streams,
-            crowd.buffers.error, crowd.buffers.iterations)
+            crowd.buffers.error, crowd.buffers.iterations, serial)
         got = (crowd.buffers.iterations.copy(), crowd.buffers.error.copy(), crowd.joint_positions(),
                crowd.rotations(), crowd.world_rotations())
         if reference is None:

@@ -69,3 +69,24 @@ def test_forward_kinematics_picks_by_size_and_matches_either_way(n):
                           crowd.world_rot, crowd._every, rig.n_joints)
     np.testing.assert_array_equal(crowd.world_pos.to_numpy(), got[0][0])
     assert sl.serial_for(n * rig.n_joints, sl.JOINT) == (n < 1000)
+
+
+@pytest.mark.parametrize("method", ["fabrik", "dls"])
+def test_chain_solves_are_the_same_on_the_launching_thread(monkeypatch, method):
+    """The constraint-free FABRIK and closed-form DLS lanes run a small crowd's streams on the launching thread
+    (serial_for with CHAIN_JOINT: 100 chain16s serial, 2,000 not) and get the same bits as on the pool."""
+    import crowd_ik as cik
+    from crowd_ik.bench import workloads as w
+
+    assert sl.serial_for(100 * 17, sl.CHAIN_JOINT) and not sl.serial_for(2000 * 17, sl.CHAIN_JOINT)
+    wl = w.make_workload("chain16", 300)
+    out = []
+    for work in (float("inf"), -1.0):
+        monkeypatch.setattr(sl, "SERIAL_WORK", work)
+        crowd = cik.Crowd(wl.rig, wl.n, spacing=w.SPACING)
+        crowd.set_angles(wl.angles)
+        rep = crowd.solve(wl.targets, method=method, max_iterations=wl.max_iterations, tolerance=wl.tolerance)
+        out.append((rep.iterations, rep.error, crowd.joint_positions(), crowd.rotations()))
+    assert out[0][0].mean() > 3
+    for a, b in zip(*out):
+        np.testing.assert_array_equal(a, b)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crowd_ik.kernels.serial_loops import CHAIN_JOINT, serial_for
 from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 from crowd_ik.solvers.dls_setup import dls_settings
@@ -202,7 +203,7 @@ def _free(crowd, req) -> None:
     # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
     prepared(dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints)))(
         *head, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
-        *bundles.result(crowd),
+        *bundles.result(crowd), serial_for(crowd.n * rig.n_joints, CHAIN_JOINT),  # a small crowd on one thread
     )
 
 
