@@ -23,7 +23,6 @@ are built in kernels/dls_lane_rows.py, the secondary terms' parts in kernels/dls
 """
 
 import functools
-from types import SimpleNamespace
 
 import taichi as ti
 
@@ -242,12 +241,14 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
             lx[s, j], ly[s, j], lz[s, j], lw[s, j] = ti.select(back, sx, qx), ti.select(back, sy, qy), \
                 ti.select(back, sz, qz), ti.select(back, sw, qw)
 
-    F = SimpleNamespace(V=V, lx=lx, ly=ly, lz=lz, lw=lw, px=px, py=py, pz=pz, rx=rx, ry=ry, rz=rz, rw=rw, th=th, st=st,
-                        fr=fr, mp=mp, dax=dax, day=day, daz=daz, e0=e0, yv=yv, ga=ga, jac=jac, sys=sys, tw=tw, ox=ox,
-                        oy=oy, oz=oz, tqx=tqx, tqy=tqy, tqz=tqz, tqw=tqw, tqk=tqk, target=target,
-                        parent_rot=parent_rot)  # what the row builder and the secondary terms read and write
+    # what the row builder and the secondary terms read and write
+    F = dict(V=V, lx=lx, ly=ly, lz=lz, lw=lw, px=px, py=py, pz=pz, rx=rx, ry=ry, rz=rz, rw=rw, th=th, st=st, fr=fr,
+             mp=mp, dax=dax, day=day, daz=daz, e0=e0, yv=yv, ga=ga, jac=jac, sys=sys, tw=tw, ox=ox, oy=oy, oz=oz,
+             tqx=tqx, tqy=tqy, tqz=tqz, tqw=tqw, tqk=tqk, target=target, parent_rot=parent_rot)
     build = row_builder(F, rot, free_root)
-    null = dls_lane_null.secondary(F, S, max_joints, max_cols, max_rows) if sec else None
+    null_start = null_terms = null_rows = null_step = None  # (with `sec`: kernels/dls_lane_null.py's functions)
+    if sec:
+        null_start, null_terms, null_rows, null_step = dls_lane_null.secondary(F, S, max_joints, max_cols, max_rows)
 
     @compiled_with(fast_math=False)  # sums in the order written: zero rows change no bits (see the docstring)
     @ti.kernel
@@ -366,8 +367,8 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                     nsv, noe = nf * 0.0, no4
                     if ti.static(sec):
                         if lm.any_lane(fst):  # the projected start pose is the velocity term's reference
-                            null.start(s, fst, J, C)
-                        nsv, nbe = null.terms(s, parent, kind, jmode, dof_start, com_w, support_w, rest_w, vel_w,
+                            null_start(s, fst, J, C)
+                        nsv, nbe = null_terms(s, parent, kind, jmode, dof_start, com_w, support_w, rest_w, vel_w,
                                               bal_w)
                         noe = ti.max(no4, nbe)
                     kck = go & (first == 0.0) & (kick > 0.0)
@@ -457,7 +458,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                         build(s, parent, kind, jmode, axes, dof_start, eff_joint, eff_axis, eff_lim, eff_rows, length,
                               R, C)
                         if ti.static(sec):
-                            null.rows(s, parent, kind, jmode, axes, dof_start, com_w, support_w, rest_w, vel_w, bal_w,
+                            null_rows(s, parent, kind, jmode, axes, dof_start, com_w, support_w, rest_w, vel_w, bal_w,
                                       C)
                         for d in range(C):
                             fr[s, d] = ti.select(building, 1.0, fr[s, d])
@@ -468,7 +469,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
                             act = frozen > 0.0
                             ok = act * 0.0
                             if ti.static(sec):
-                                ok = null.step(s, act, lam * lam, mu2, zon * NULL_STEP * damping / lam, rest_w, vel_w,
+                                ok = null_step(s, act, lam * lam, mu2, zon * NULL_STEP * damping / lam, rest_w, vel_w,
                                                bal_w, joint_w, grp_eff, run_count, runs, G, C)
                             else:
                                 ok = dsys.solve_step(s, act, lam * lam, joint_w, grp_eff, run_count, runs, G, C, jac,

@@ -9,8 +9,6 @@ built: importing the module creates no Taichi state). The balance rows are not r
 only through z, so they live in fields of their own (jb, eb) instead of blocks of jac.
 """
 
-from types import SimpleNamespace
-
 import taichi as ti
 
 from crowd_ik.kernels import dls_lane_steps as dl
@@ -24,15 +22,16 @@ def per_stream_values(max_joints: int, max_cols: int, max_rows: int) -> int:
     return 8 * max_joints + 10 * max_cols + 2
 
 
-def secondary(F, S: int, max_joints: int, max_cols: int, max_rows: int) -> SimpleNamespace:
-    """start, terms, rows and step over the fields of F (dls_general_lanes.general_solver's namespace) and the fields
+def secondary(F: dict, S: int, max_joints: int, max_cols: int, max_rows: int) -> tuple:
+    """(start, terms, rows, step) over the fields of F (dls_general_lanes.general_solver's dict of them) and the fields
     made here for S streams: th0, q0* the start pose (the velocity term's reference); cm* per joint the weighted
     points below it (dls_system's Q_COM); per column gv (g), mg (M g), zv (z), dv (d1), cv (a product's input), jb
     and hb (2 slots: the balance rows and their projection Hb); eb (the balance rows' aim)."""
-    V, L = F.V, F.V.n
-    lx, ly, lz, lw, px, py, pz, th = F.lx, F.ly, F.lz, F.lw, F.px, F.py, F.pz, F.th
-    jac, sys, e0, yv, mp, fr, ga, st, parent_rot = F.jac, F.sys, F.e0, F.yv, F.mp, F.fr, F.ga, F.st, F.parent_rot
-    dax, day, daz = F.dax, F.day, F.daz
+    V = F["V"]
+    L = V.n
+    lx, ly, lz, lw, px, py, pz, th = (F[k] for k in ("lx", "ly", "lz", "lw", "px", "py", "pz", "th"))
+    jac, sys, e0, yv, mp, fr, ga, st = (F[k] for k in ("jac", "sys", "e0", "yv", "mp", "fr", "ga", "st"))
+    dax, day, daz, parent_rot = F["dax"], F["day"], F["daz"], F["parent_rot"]
     th0, gv, mg, zv, dv, cv = lane_rows(L, (S, max_cols), 6)
     q0x, q0y, q0z, q0w, cmx, cmy, cmz, cmw = lane_rows(L, (S, max_joints), 8)
     jb, hb = lane_rows(L, (S, 2, max_cols), 2)
@@ -217,4 +216,4 @@ def secondary(F, S: int, max_joints: int, max_cols: int, max_rows: int) -> Simpl
                         st[s, d] = ti.select(act, dv[s, d] + (zv[s, d] - mp[s, d] * ga[s, d]), st[s, d])
         return ok
 
-    return SimpleNamespace(start=start, terms=terms, rows=rows, step=step)
+    return start, terms, rows, step

@@ -10,13 +10,15 @@ from crowd_ik.kernels import lane_math as lm
 from crowd_ik.solvers.settings import DLS_ORI_CLAMP as ORI_CLAMP
 
 
-def row_builder(F, rot: bool, free_root: bool):
-    """build(s, ...) over the fields of F (dls_general_lanes.general_solver's namespace: the pose p*, r*, angles th,
+def row_builder(F: dict, rot: bool, free_root: bool):
+    """build(s, ...) over the fields of F (dls_general_lanes.general_solver's dict of them: the pose p*, r*, angles th,
     targets t*, o*, tq*, rows jac, e0, the columns' world axes da*, and its target and parent_rot)."""
-    V = F.V
-    px, py, pz, rx, ry, rz, rw, th = F.px, F.py, F.pz, F.rx, F.ry, F.rz, F.rw, F.th
-    tw, ox, oy, oz, tqx, tqy, tqz, tqw, tqk = F.tw, F.ox, F.oy, F.oz, F.tqx, F.tqy, F.tqz, F.tqw, F.tqk
-    jac, e0, target, parent_rot, dax, day, daz = F.jac, F.e0, F.target, F.parent_rot, F.dax, F.day, F.daz
+    V = F["V"]
+    px, py, pz, rx, ry, rz, rw, th = (F[k] for k in ("px", "py", "pz", "rx", "ry", "rz", "rw", "th"))
+    tw, ox, oy, oz = F["tw"], F["ox"], F["oy"], F["oz"]
+    tqx, tqy, tqz, tqw, tqk = F["tqx"], F["tqy"], F["tqz"], F["tqw"], F["tqk"]
+    jac, e0, target, parent_rot = F["jac"], F["e0"], F["target"], F["parent_rot"]
+    dax, day, daz = F["dax"], F["day"], F["daz"]
 
     @ti.func
     def build(s, parent: ti.template(), kind: ti.template(), jmode: ti.template(), axes: ti.template(),
