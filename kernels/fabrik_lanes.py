@@ -29,6 +29,16 @@ recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same ord
 normalisation multiplies by one reciprocal (kernels/lane_math.py), so statuses and iteration counts
 match it and results do not depend on a character's lane-mates.
 
+Positions relative to the root: both kernels work on a character's joint positions and targets minus its root_pos
+(exact differences of float32 world values) and add it back once on the way out. In world coordinates float32's
+spacing is 7.6 um at 64-128 m and 30 um at 256-512 m, so in a big crowd's far corners the recovered pose (rebuilt by
+FK) missed the tolerance its positions had met: chain16 at 100,000 characters (a 316 m grid), 767 characters ended
+1.60-1.77 mm from their targets against the 1.6 mm tolerance (none within 16 m of the origin, 1.5 % beyond 128 m);
+relative, 3 (within 2 um of it), as the float64 numba peer and the twin (the one-character kernel, CUDA's, still
+works in world coordinates). The root's base position is 0, not root_pos minus itself: a branch that zeroed the root
+joint's position made LLVM compile lanes 6-15 of a packet apart from lanes 0-5 (16 copies of one character: two
+results).
+
 Flat rows: a character's rows of an (N, J) ndarray are addressed as ``a[0, i * J + j]``. Taichi's
 ndarrays are C-contiguous, so that is the same element, and with a constant first index LLVM drops the
 reload of the array's shape and the multiply that otherwise follow every store (only the pointer is
@@ -69,6 +79,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
         bone: ndarray(dtype=vec4, ndim=1),
         eff_joint: ndarray(dtype=ti.i32, ndim=1),
         world_pos: ndarray(dtype=vec3, ndim=2),
+        root_pos: ndarray(dtype=vec3, ndim=1),
         targets: ndarray(dtype=vec3, ndim=2),
         weights: ndarray(ndim=2),
         n_streams: ti.i32,
@@ -116,19 +127,20 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
                         while nxt < end and cur[l] < 0:  # take the next character that needs iterations
                             i = nxt
                             nxt += 1
+                            o = root_pos[i]  # the origin of the lane's positions
                             e0 = 0.0
                             for e in range(E):
-                                v = targets[i, e]
+                                v = targets[i, e] - o
                                 w = weights[i, e]
                                 tx[s, e][l] = v.x
                                 ty[s, e][l] = v.y
                                 tz[s, e][l] = v.z
                                 tw[s, e][l] = w
                                 if w > 0.0:
-                                    e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
+                                    e0 = ti.max(e0, ((world_pos[i, eff_joint[e]] - o) - v).norm())
                             if max_iterations > 0 and e0 > tolerance:
                                 for j in range(J):
-                                    v = world_pos[0, i * J + j]
+                                    v = world_pos[0, i * J + j] - o
                                     px[s, j][l], py[s, j][l], pz[s, j][l] = v.x, v.y, v.z
                                 cur[l] = i
                                 live[l] = 1.0
@@ -279,7 +291,7 @@ def free_recover(L: int, max_joints: int):
                     i = ti.min(p * L + l, N - 1)
                     if p * L + l < N and iterations[i] > 0:
                         m[l] = 1.0
-                    r = root_pos[i]
+                    r = root_pos[i]  # the origin of the solve's positions
                     rx[l], ry[l], rz[l], h[l] = r.x, r.y, r.z, 0.5 * root_yaw[i]
                 if m.max() > 0.0:
                     # the proposals' weights: free_solver's backward sums (the same additions in the same order)
@@ -305,13 +317,14 @@ def free_recover(L: int, max_joints: int):
                     yx, yy, yz, yw = V(0.0), ti.sin(h), V(0.0), ti.cos(h)  # quat.yaw_quat
                     for j in range(J):
                         par = parent[j]
-                        bx, by, bz, bqx, bqy, bqz, bqw = rx, ry, rz, yx, yy, yz, yw
+                        bx, by, bz, bqx, bqy, bqz, bqw = V(0.0), V(0.0), V(0.0), yx, yy, yz, yw  # the root, at 0
                         if par >= 0:
                             bx, by, bz = fx[s, par], fy[s, par], fz[s, par]
                             bqx, bqy, bqz, bqw = fqx[s, par], fqy[s, par], fqz[s, par], fqw[s, par]
                         o = offset[j]
                         ox, oy, oz = lm.qrot(bqx, bqy, bqz, bqw, V(o.x), V(o.y), V(o.z))
                         jx, jy, jz = bx + ox, by + oy, bz + oz
+
                         qx, qy, qz, qw = lqx[s, j], lqy[s, j], lqz[s, j], lqw[s, j]
                         c0 = child_start[j]
                         c1 = child_start[j + 1]
@@ -353,7 +366,7 @@ def free_recover(L: int, max_joints: int):
                             if m[l] > 0.0:
                                 f = (p * L + l) * J + j
                                 local_rot[0, f] = vec4(ax[l], ay[l], az[l], a4[l])
-                                world_pos[0, f] = vec3(cx[l], cy[l], cz[l])
+                                world_pos[0, f] = vec3(cx[l] + rx[l], cy[l] + ry[l], cz[l] + rz[l])
                                 world_rot[0, f] = vec4(dx[l], dy[l], dz[l], dw[l])
                     for l in range(L):
                         i = p * L + l
@@ -362,7 +375,8 @@ def free_recover(L: int, max_joints: int):
                             for e in range(E):
                                 if weights[i, e] > 0.0:
                                     k = eff_joint[e]
-                                    d = vec3(fx[s, k][l], fy[s, k][l], fz[s, k][l]) - targets[i, e]
+                                    t = targets[i, e] - vec3(rx[l], ry[l], rz[l])
+                                    d = vec3(fx[s, k][l], fy[s, k][l], fz[s, k][l]) - t
                                     err = ti.max(err, d.norm())
                             error[i] = err
 

@@ -132,7 +132,8 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
         crowd.buffers.weights[...] = weights
         proposals = [ti.ndarray(V, shape=(P, J)) for _ in range(3)]
         fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
-            ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
+            ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
+            *bundles.goal(crowd, orientations=False),
             streams, *proposals, 40, 1e-4, *bundles.result(crowd), serial)
         fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
             ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],

@@ -22,7 +22,8 @@ def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
     b = crowd.buffers
     serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
     prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
-        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, *bundles.goal(crowd, orientations=False),
+        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
+        *bundles.goal(crowd, orientations=False),
         lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd), serial,
     )
     prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J)))(
