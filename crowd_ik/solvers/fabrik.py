@@ -65,18 +65,25 @@ def solve_limited(crowd, active: np.ndarray, max_iterations: int, tolerance: flo
 def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteration: int, req=None) -> None:
     """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
     constraint-free rigs without orientation targets (the rotations of the final positions, once); req with
-    rotations: the full rotation targets (kernels/fabrik_rotation.py), else none."""
-    from crowd_ik.kernels import fabrik
+    rotations: the full rotation targets (kernels/fabrik_rotation.py), else none. The kernel solves in each
+    character's root frame (kernels/root_frame.py: world_pos and the targets minus root_pos, its root at 0)."""
+    from crowd_ik.kernels import fabrik, root_frame
+    from crowd_ik.kernels.serial_loops import JOINT, serial_for
 
-    ti, J = crowd.ti, crowd.rig.n_joints
+    ti, J, b = crowd.ti, crowd.rig.n_joints, crowd.buffers
     work = crowd.scratch("fabrik_pos", ti.math.vec3, (crowd.n, J))
     acc_w = crowd.scratch("fabrik_w", ti.f32, (crowd.n, J))
     use_rot = int(req is not None and req.rotations is not None)
     cache = crowd.__dict__.setdefault("_fabrik_eff_move", {})
     if "move" not in cache:
         cache["move"] = moving_joints(crowd.rig)
+        cache["frame"] = (np.zeros_like(b.targets), np.zeros_like(crowd.root_pos))  # targets in it, its roots
+    rel_targets, origins = cache["frame"]
+    serial = serial_for(crowd.n * J, JOINT)
+    prepared(root_frame.to_root_frame)(crowd.root_pos, crowd.world_pos, b.targets, rel_targets, serial)
     prepared(fabrik.fabrik_solve)(
-        *bundles.limited_rig(crowd), *bundles.pose(crowd), *bundles.goal(crowd), work, acc_w, max_iterations,
-        tolerance, recover_each_iteration, int(not crowd.buffers.orient_zero), *bundles.rotation_goal(crowd),
+        *bundles.limited_rig(crowd), origins, *bundles.pose(crowd)[1:], rel_targets, b.weights, b.orient, work, acc_w,
+        max_iterations, tolerance, recover_each_iteration, int(not b.orient_zero), *bundles.rotation_goal(crowd),
         cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd),
     )
+    prepared(root_frame.to_world_frame)(crowd.root_pos, crowd.world_pos, serial)
