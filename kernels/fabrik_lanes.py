@@ -34,8 +34,8 @@ Positions relative to the root: both kernels work on a character's joint positio
 spacing is 7.6 um at 64-128 m and 30 um at 256-512 m, so in a big crowd's far corners the recovered pose (rebuilt by
 FK) missed the tolerance its positions had met: chain16 at 100,000 characters (a 316 m grid), 767 characters ended
 1.60-1.77 mm from their targets against the 1.6 mm tolerance (none within 16 m of the origin, 1.5 % beyond 128 m);
-relative, 3 (within 2 um of it), as the float64 numba peer and the twin (the one-character kernel, CUDA's, still
-works in world coordinates). The root's base position is 0, not root_pos minus itself: a branch that zeroed the root
+relative, 3 (within 2 um of it), as the float64 numba peer and the twin (the one-character kernel, CUDA's, solves in
+the root's frame too: kernels/root_frame.py). The root's base position is 0, not root_pos minus itself: a branch that zeroed the root
 joint's position made LLVM compile lanes 6-15 of a packet apart from lanes 0-5 (16 copies of one character: two
 results).
 
