@@ -55,7 +55,7 @@ def max_streams(L: int, max_joints: int, max_cols: int, max_rows: int, max_effec
     """The streams general_solver's scratch holds: lane_plan.MAX_STREAMS, fewer where that would pass SCRATCH_BYTES
     (a big imported rig: a humanoid's 256 streams take about 38 MB, 45 MB with `sec`), at least 8."""
     values = (20 * max_joints + 11 * max_cols + 2 * max_rows + max_rows * (max_cols + max_rows) + 12 * max_effectors
-              + 3 + sec * dls_lane_null.per_stream_values(max_joints, max_cols, max_rows))
+              + 3 + sec * dls_lane_null.per_stream_values(max_joints, max_cols))
     per_stream = 4 * L * values
     return max(8, min(MAX_STREAMS, SCRATCH_BYTES // per_stream))
 
@@ -248,7 +248,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     build = row_builder(F, rot, free_root)
     null_start = null_terms = null_rows = null_step = None  # (with `sec`: kernels/dls_lane_null.py's functions)
     if sec:
-        null_start, null_terms, null_rows, null_step = dls_lane_null.secondary(F, S, max_joints, max_cols, max_rows)
+        null_start, null_terms, null_rows, null_step = dls_lane_null.secondary(F, S, max_joints, max_cols)
 
     @compiled_with(fast_math=False)  # sums in the order written: zero rows change no bits (see the docstring)
     @ti.kernel

@@ -17,12 +17,12 @@ from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels.lane_plan import lane_rows
 
 
-def per_stream_values(max_joints: int, max_cols: int, max_rows: int) -> int:
+def per_stream_values(max_joints: int, max_cols: int) -> int:
     """Lane values the secondary terms' fields hold per stream (for dls_general_lanes.max_streams)."""
     return 8 * max_joints + 10 * max_cols + 2
 
 
-def secondary(F: dict, S: int, max_joints: int, max_cols: int, max_rows: int) -> tuple:
+def secondary(F: dict, S: int, max_joints: int, max_cols: int) -> tuple:
     """(start, terms, rows, step) over the fields of F (dls_general_lanes.general_solver's dict of them) and the fields
     made here for S streams: th0, q0* the start pose (the velocity term's reference); cm* per joint the weighted
     points below it (dls_system's Q_COM); per column gv (g), mg (M g), zv (z), dv (d1), cv (a product's input), jb
