@@ -81,9 +81,12 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
     rel_targets, origins = cache["frame"]
     serial = serial_for(crowd.n * J, JOINT)
     prepared(root_frame.to_root_frame)(crowd.root_pos, crowd.world_pos, b.targets, rel_targets, serial)
-    prepared(fabrik.fabrik_solve)(
-        *bundles.limited_rig(crowd), origins, *bundles.pose(crowd)[1:], rel_targets, b.weights, b.orient, work, acc_w,
-        max_iterations, tolerance, recover_each_iteration, int(not b.orient_zero), *bundles.rotation_goal(crowd),
-        cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot, *bundles.result(crowd),
-    )
-    prepared(root_frame.to_world_frame)(crowd.root_pos, crowd.world_pos, serial)
+    try:
+        prepared(fabrik.fabrik_solve)(
+            *bundles.limited_rig(crowd), origins, *bundles.pose(crowd)[1:], rel_targets, b.weights, b.orient, work,
+            acc_w, max_iterations, tolerance, recover_each_iteration, int(not b.orient_zero),
+            *bundles.rotation_goal(crowd), cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot,
+            *bundles.result(crowd),
+        )
+    finally:  # the crowd's positions back in the world, whatever happened
+        prepared(root_frame.to_world_frame)(crowd.root_pos, crowd.world_pos, serial)
