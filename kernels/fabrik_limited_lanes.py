@@ -8,7 +8,9 @@ the streams' state lives in fields of compile-time shape. Each iteration is the 
 passes of fabrik_lanes, then the topological sweep of fabrik.recover_and_constrain: FK, each active joint's
 rotation recovered from the proposals (the hinge's best angle, the ball joint's swing rounds, the closed-form
 two-bone limb and the twist for a hinge child: kernels/fabrik_lane_joints.py, an orientation target's turn:
-kernels/lane_align.py) and clamped (kernels/lane_limits.py).
+kernels/lane_align.py) and clamped (kernels/lane_limits.py). As in kernels/fabrik_lanes.py the positions and targets
+are the character's minus its root_pos (float32's precision does not depend on where it stands) and the root goes
+back on once, when the pose is written out.
 
 Which joints are active (some positively weighted effector below them) is the same for every character
 (``active``, from the host): the rig's structure decides the branches as scalars, and only what depends on a
@@ -66,7 +68,8 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         """fabrik.recover_and_constrain per lane: rotations from the proposals, clamped, then FK."""
         for j in range(parent.shape[0]):
             p = parent[j]
-            bx, by, bz, bqx, bqy, bqz, bqw = ox[s], oy[s], oz[s], yx[s], yy[s], yz[s], yw[s]
+            zero = yx[s] * 0.0  # the root, at the origin of the lanes' positions
+            bx, by, bz, bqx, bqy, bqz, bqw = zero, zero, zero, yx[s], yy[s], yz[s], yw[s]
             if p >= 0:
                 bx, by, bz, bqx, bqy, bqz, bqw = fx[s, p], fy[s, p], fz[s, p], rx[s, p], ry[s, p], rz[s, p], rw[s, p]
             o = offset[j]
@@ -235,7 +238,8 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             stalled[i] = 1 if flat[l] >= STALL_AFTER else 0
                             for j in range(J):
                                 local_rot[i, j] = vec4(lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l])
-                                world_pos[i, j] = vec3(fx[s, j][l], fy[s, j][l], fz[s, j][l])
+                                world_pos[i, j] = vec3(fx[s, j][l] + ox[s][l], fy[s, j][l] + oy[s][l],
+                                                       fz[s, j][l] + oz[s][l])
                                 world_rot[i, j] = vec4(rx[s, j][l], ry[s, j][l], rz[s, j][l], rw[s, j][l])
                         cur[l] = -1
                         live[l] = 0.0
@@ -244,12 +248,13 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                             nxt += 1
                             e0 = 0.0
                             t0 = 0.0
+                            r = root_pos[i]  # the origin of the lane's positions
                             for e in range(E):
-                                v = targets[i, e]
+                                v = targets[i, e] - r
                                 w = weights[i, e]
                                 tx[s, e][l], ty[s, e][l], tz[s, e][l], tw[s, e][l] = v.x, v.y, v.z, w
                                 if w > 0.0:
-                                    e0 = ti.max(e0, (world_pos[i, eff_joint[e]] - v).norm())
+                                    e0 = ti.max(e0, ((world_pos[i, eff_joint[e]] - r) - v).norm())
                                 o = vec3(0.0)
                                 if use_orient:
                                     o = orient[i, e]
@@ -258,11 +263,10 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
                                 dx[s, e][l], dy[s, e][l], dz[s, e][l] = o.x, o.y, o.z
                             if max_iterations > 0 and (e0 > tolerance or t0 > 1e-6):
                                 for j in range(J):
-                                    v = world_pos[i, j]
+                                    v = world_pos[i, j] - r
                                     fx[s, j][l], fy[s, j][l], fz[s, j][l] = v.x, v.y, v.z
                                     q = local_rot[i, j]
                                     lx[s, j][l], ly[s, j][l], lz[s, j][l], lw[s, j][l] = q.x, q.y, q.z, q.w
-                                r = root_pos[i]
                                 y = yaw_quat(root_yaw[i])
                                 ox[s][l], oy[s][l], oz[s][l] = r.x, r.y, r.z
                                 yx[s][l], yy[s][l], yz[s][l], yw[s][l] = y.x, y.y, y.z, y.w
