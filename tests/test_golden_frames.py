@@ -38,8 +38,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # Re-recorded in stop 49 when the joint-limited FABRIK lanes moved to each character's root frame (positions and
 # targets minus root_pos, exact in float32; added back once): rounding moved up to 13 pixels of an arena frame (160x96)
 # by up to 17 levels in 46 of its 60 frames, up to 8 pixels of a duel frame by one level. The hashes recorded before
-# had stopped matching this CPU's frames before stop 49 (the session's start commit rendered arena 88ace812...,
-# duel 1013e751..., which the kept frames' tolerance passed, as it passes these).
+# never matched the machine of stop 49, whose flags are those named below, even at the commit that recorded them
+# (9fd3c7c rendered arena 37b004fe... there, stop 49's start commit 88ace812...): something besides the instruction
+# set (microcode, a library) separates the two machines, and the kept frames' tolerance passed both.
 GOLDEN = {
     "duel": {
         "e2ffc9f7fd2ccabbf8f833ee09c37c3cbd83dd6a772dbfb6f0a5a3a98751c4c9",  # AMD EPYC, AVX-512 + IFMA/VBMI/BF16
