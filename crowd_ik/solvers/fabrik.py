@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from crowd_ik.prepared import prepared
-from crowd_ik.solvers import bundles, settings
+from crowd_ik.solvers import bundles, root_frame, settings
 from crowd_ik.solvers.ccd import moving_joints
 from crowd_ik.solvers.fabrik_free import solve_free
 from crowd_ik.solvers.lane_pattern import active_joints, weighted_effectors
@@ -66,9 +66,8 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
     """kernels/fabrik.py: one character per thread, any rig and target; recover_each_iteration 0 only for
     constraint-free rigs without orientation targets (the rotations of the final positions, once); req with
     rotations: the full rotation targets (kernels/fabrik_rotation.py), else none. The kernel solves in each
-    character's root frame (kernels/root_frame.py: world_pos and the targets minus root_pos, its root at 0)."""
-    from crowd_ik.kernels import fabrik, root_frame
-    from crowd_ik.kernels.serial_loops import JOINT, serial_for
+    character's root frame (solvers/root_frame.py)."""
+    from crowd_ik.kernels import fabrik
 
     ti, J, b = crowd.ti, crowd.rig.n_joints, crowd.buffers
     work = crowd.scratch("fabrik_pos", ti.math.vec3, (crowd.n, J))
@@ -77,16 +76,10 @@ def _general(crowd, max_iterations: int, tolerance: float, recover_each_iteratio
     cache = crowd.__dict__.setdefault("_fabrik_eff_move", {})
     if "move" not in cache:
         cache["move"] = moving_joints(crowd.rig)
-        cache["frame"] = (np.zeros_like(b.targets), np.zeros_like(crowd.root_pos))  # targets in it, its roots
-    rel_targets, origins = cache["frame"]
-    serial = serial_for(crowd.n * J, JOINT)
-    prepared(root_frame.to_root_frame)(crowd.root_pos, crowd.world_pos, b.targets, rel_targets, serial)
-    try:
+    with root_frame.shifted(crowd) as (origins, rel_targets):
         prepared(fabrik.fabrik_solve)(
             *bundles.limited_rig(crowd), origins, *bundles.pose(crowd)[1:], rel_targets, b.weights, b.orient, work,
             acc_w, max_iterations, tolerance, recover_each_iteration, int(not b.orient_zero),
             *bundles.rotation_goal(crowd), cache["move"], req.rotation_tolerance if use_rot else 0.0, use_rot,
             *bundles.result(crowd),
         )
-    finally:  # the crowd's positions back in the world, whatever happened
-        prepared(root_frame.to_world_frame)(crowd.root_pos, crowd.world_pos, serial)
