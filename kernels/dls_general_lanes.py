@@ -220,11 +220,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
     @ti.func
     def restore(s, on, J, C):
         """The pose before the step (thb, b*) back in the lanes `on`."""
-        for d in range(C):
-            th[s, d] = ti.select(on, thb[s, d], th[s, d])
-        for j in range(J):
-            lx[s, j], ly[s, j] = ti.select(on, bx[s, j], lx[s, j]), ti.select(on, by[s, j], ly[s, j])
-            lz[s, j], lw[s, j] = ti.select(on, bz[s, j], lz[s, j]), ti.select(on, bw[s, j], lw[s, j])
+        dl.copy_pose(s, on, J, C, (thb, bx, by, bz, bw), (th, lx, ly, lz, lw))
 
     @ti.func
     def save_or_back(s, save, back, J, C):

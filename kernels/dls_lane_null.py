@@ -40,11 +40,7 @@ def secondary(F: dict, S: int, max_joints: int, max_cols: int) -> tuple:
     @ti.func
     def start(s, on, J, C):
         """The pose just projected is the start pose (the velocity term's reference) in the lanes `on`."""
-        for d in range(C):
-            th0[s, d] = ti.select(on, th[s, d], th0[s, d])
-        for j in range(J):
-            q0x[s, j], q0y[s, j] = ti.select(on, lx[s, j], q0x[s, j]), ti.select(on, ly[s, j], q0y[s, j])
-            q0z[s, j], q0w[s, j] = ti.select(on, lz[s, j], q0z[s, j]), ti.select(on, lw[s, j], q0w[s, j])
+        dl.copy_pose(s, on, J, C, (th, lx, ly, lz, lw), (th0, q0x, q0y, q0z, q0w))
 
     @ti.func
     def start_offset(s, j):

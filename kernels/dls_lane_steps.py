@@ -112,3 +112,14 @@ def clamp_ball(qx, qy, qz, qw, angle_joint, lo: ti.template(), hi: ti.template()
     if angle_joint:
         e0, e1, e2 = lim.quat_to_euler_xyz(ox, oy, oz, ow)
     return ox, oy, oz, ow, e0, e1, e2
+
+
+@ti.func
+def copy_pose(s, on, J, C, src: ti.template(), dst: ti.template()):
+    """In the lanes `on` of stream s, a pose's field rows src into dst, each a tuple (angles (S, C), local rotation
+    x, y, z, w (S, J)): the general DLS lanes' restore after a rejected step and the velocity term's start pose."""
+    for d in range(C):
+        dst[0][s, d] = ti.select(on, src[0][s, d], dst[0][s, d])
+    for j in range(J):
+        for k in ti.static(range(1, 5)):
+            dst[k][s, j] = ti.select(on, src[k][s, j], dst[k][s, j])
