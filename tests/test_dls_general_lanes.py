@@ -74,6 +74,21 @@ def _on_both(monkeypatch, run):
     return out
 
 
+def _on_both_and_twin(monkeypatch, rig, n, seed, kw):
+    """_case(rig, n, seed) solved with DLS and the request kw: [(report, joint positions)] with the lanes and with the
+    one-character kernel, and the float64 twin's result from the same start."""
+    crowd, targets, weights, orient = _case(rig, n, seed)
+    start = (*crowd.roots(), crowd.rotations())
+
+    def run():
+        crowd = _case(rig, n, seed)[0]
+        rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, **kw)
+        return rep, crowd.joint_positions()
+
+    lanes, kernel = _on_both(monkeypatch, run)
+    return lanes, kernel, dls_solve(rig, *start, targets, weights=weights, orientations=orient, **kw)
+
+
 def _both(monkeypatch, rig, n, seed, iterations):
     def run():
         crowd, targets, weights, orient = _case(rig, n, seed)
@@ -216,16 +231,7 @@ def test_rotation_targets_match_the_one_character_kernel(monkeypatch, name):
     rots /= np.linalg.norm(rots, axis=-1, keepdims=True)
     rot_w = np.where(rng.uniform(size=(n, rig.n_effectors)) < 0.5, 0.0, 0.7).astype(np.float32)
     kw = dict(rotations=rots, rotation_weights=rot_w, max_iterations=8, tolerance=1e-3)
-    crowd, targets, weights, orient = _case(rig, n, seed=13)
-    start = (*crowd.roots(), crowd.rotations())
-
-    def run():
-        crowd = _case(rig, n, seed=13)[0]
-        rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, **kw)
-        return rep, crowd.joint_positions()
-
-    (a, pa), (b, pb) = _on_both(monkeypatch, run)
-    twin = dls_solve(rig, *start, targets, weights=weights, orientations=orient, **kw)
+    (a, pa), (b, pb), twin = _on_both_and_twin(monkeypatch, rig, n, 13, kw)
     assert a.iterations.max() > 2
     assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
     near = [np.mean(np.abs(p - twin[1]).max(axis=(1, 2)) <= 1e-4) for p in (pa, pb)]
@@ -284,16 +290,7 @@ def test_secondary_terms_match_the_one_character_kernel(monkeypatch, name):
     rig = RIGS[name]()
     n = 6 * settings.general_lanes() + 3
     kw = dict(SECONDARY[name], max_iterations=8, tolerance=1e-3)
-    crowd, targets, weights, orient = _case(rig, n, seed=19)
-    start = (*crowd.roots(), crowd.rotations())
-
-    def run():
-        crowd = _case(rig, n, seed=19)[0]
-        rep = crowd.solve(targets, method="dls", weights=weights, orientations=orient, **kw)
-        return rep, crowd.joint_positions()
-
-    (a, pa), (b, pb) = _on_both(monkeypatch, run)
-    twin = dls_solve(rig, *start, targets, weights=weights, orientations=orient, **kw)
+    (a, pa), (b, pb), twin = _on_both_and_twin(monkeypatch, rig, n, 19, kw)
     assert a.iterations.max() > 2
     assert np.mean(a.status == b.status) >= 0.97 and np.mean(a.iterations == b.iterations) >= 0.95
     assert np.mean(np.abs(pa - pb).max(axis=(1, 2)) <= 1e-3) >= 0.9
