@@ -179,7 +179,7 @@ def init(arch: str = "auto", threads: int | None = None, fp: int = 32, cache_dir
     if arch == "cuda" and resolved != "cuda":
         raise RuntimeError("arch 'cuda' requested but Taichi could not start its CUDA backend")
     chosen = settings.choose_lanes(resolved, lanes)
-    settings.set_lanes(chosen)
+    settings.set_lanes(chosen, resolved)
     _STATE.update(arch=resolved, fp=fp, threads=threads, lanes=chosen, cache_dir=cache_dir)
     return resolved
 

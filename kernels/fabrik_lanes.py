@@ -51,7 +51,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_streams as ls
-from crowd_ik.kernels.lane_plan import MAX_STREAMS
+from crowd_ik.kernels.lane_plan import MAX_STREAMS, stream_rows
 from crowd_ik.kernels.work_split import spread_stride
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
@@ -60,18 +60,19 @@ vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
 @functools.cache
-def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
+def free_solver(L: int, LO: int, max_joints: int, max_effectors: int, streams: int = MAX_STREAMS,
+                joint_major: bool = False):
     """The joint-moving kernel for L lanes per stream. Scratch per stream s (fields of max_joints and
-    max_effectors rows): px, py, pz (pose), wx, wy, wz, aw (proposals and their weights), tx, ty, tz, tw
-    (targets, weights). Output per character i in (P, J) rows of LO lanes, [i // LO][i % LO]: gx, gy, gz,
-    the last proposals, laid out for free_recover(LO)."""
+    max_effectors rows for `streams` streams, laid out as lane_plan.stream_rows says): px, py, pz (pose), wx, wy,
+    wz, aw (proposals and their weights), tx, ty, tz, tw (targets, weights). Output per character i in (P, J) rows
+    of LO lanes, [i // LO][i % LO]: gx, gy, gz, the last proposals, laid out for free_recover(LO)."""
     V = ti.types.vector(L, ti.f32)
     VO = ti.types.vector(LO, ti.f32)
     Vi = ti.types.vector(L, ti.i32)
     # the streams' scratch in fields: their shapes are compile-time constants, so an access is one multiply-add
     # from a fixed base (an ndarray's pointer and shape are reloaded after every store to any array)
-    px, py, pz, wx, wy, wz, aw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints)) for _ in range(7))
-    tx, ty, tz, tw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_effectors)) for _ in range(4))
+    px, py, pz, wx, wy, wz, aw = stream_rows(L, streams, max_joints, 7, joint_major)
+    tx, ty, tz, tw = stream_rows(L, streams, max_effectors, 4, joint_major)
 
     @ti.kernel
     def solve(
@@ -210,15 +211,14 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int):
 
 
 @functools.cache
-def free_recover(L: int, max_joints: int):
+def free_recover(L: int, max_joints: int, streams: int = MAX_STREAMS, joint_major: bool = False):
     """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz that free_solver left in
-    (P, J) lane rows; each stream keeps its packet's weights in field rows aw, its local rotations in lqx..lqw
-    and its world pose in fx, fy, fz, fqx, fqy, fqz, fqw."""
+    (P, J) lane rows; each of at most `streams` streams keeps its packet's weights in field rows aw, its local
+    rotations in lqx..lqw and its world pose in fx, fy, fz, fqx, fqy, fqz, fqw (laid out as free_solver's)."""
     V = ti.types.vector(L, ti.f32)
-    fx, fy, fz, fqx, fqy, fqz, fqw, lqx, lqy, lqz, lqw = (ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints))
-                                                         for _ in range(11))
-    acc = ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, 4))  # swing_round's running sums
-    aw = ti.Vector.field(L, ti.f32, shape=(MAX_STREAMS, max_joints))  # the proposals' weights
+    fx, fy, fz, fqx, fqy, fqz, fqw, lqx, lqy, lqz, lqw = stream_rows(L, streams, max_joints, 11, joint_major)
+    (acc,) = stream_rows(L, streams, 4, 1, joint_major)  # swing_round's running sums
+    (aw,) = stream_rows(L, streams, max_joints, 1, joint_major)  # the proposals' weights
 
     @ti.func
     def swing_round(s, p, qx, qy, qz, qw, c0, c1, ix, iy, iz, iw, jx, jy, jz, bone: ti.template(),

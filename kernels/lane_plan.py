@@ -5,6 +5,9 @@ size their scratch fields and launches with these, and Crowd passes the stream c
 """
 
 MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
+# On CUDA (one lane) each stream is a GPU thread: enough to fill an H100 or H200 (132 SMs x 1,024 resident threads) with
+# some to spare, so a million characters make streams of about 8 (a warp's threads then run similar totals of iterations)
+GPU_STREAMS = 1 << 17
 CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
 
 
@@ -31,6 +34,17 @@ def streams(n: int, lanes: int) -> int:
     """Streams for n characters: about CHARS_PER_LANE characters per lane, at least as many as packets up to 8
     (small crowds still use every thread), at most MAX_STREAMS."""
     return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE)), MAX_STREAMS))
+
+
+def stream_rows(lanes: int, streams: int, rows: int, count: int, joint_major: bool) -> list:
+    """`count` scratch fields of `lanes`-wide float32 vectors over (streams, rows). Stream-major (a stream's rows
+    together: one CPU thread's packet in its own cache lines) or joint-major, for CUDA: one row of every stream
+    together, so the 32 threads of a warp (32 consecutive streams) read a joint in one coalesced access instead of
+    32 scattered cache lines."""
+    import taichi as ti
+
+    order = "ji" if joint_major else None
+    return [ti.Vector.field(lanes, ti.f32, shape=(streams, rows), order=order) for _ in range(count)]
 
 
 def lane_rows(lanes: int, shape: tuple, count: int) -> list:

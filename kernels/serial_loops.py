@@ -10,6 +10,8 @@ Results do not depend on it: none of these kernels uses float atomics, and their
 order-free results (counts, prefix sums, minima under a total order); tests check serial == parallel.
 """
 
+from crowd_ik.solvers.settings import on_gpu
+
 # Units of work a serial launch may hold: one unit is about 0.1 us of one thread's time, so SERIAL_WORK is the
 # ~0.4 ms of work below which the thread pool's hand-offs cost more than the second core saves.
 SERIAL_WORK = 4096
@@ -29,5 +31,6 @@ CHAIN_JOINT = 0.5
 
 
 def serial_for(items: float, weight: float = LIGHT) -> bool:
-    """True when a launch over `items` items of `weight` units each is small enough to run on one thread."""
-    return float(items) * float(weight) <= SERIAL_WORK
+    """True when a launch over `items` items of `weight` units each is small enough to run on one thread; never on
+    CUDA, where a serialised loop runs on one GPU thread and a launch costs the same either way."""
+    return not on_gpu() and float(items) * float(weight) <= SERIAL_WORK

@@ -64,38 +64,42 @@ def test_lanes_match_the_twin_and_the_recovered_pose_is_its_own_fk(name):
 
 @pytest.mark.parametrize("name", sorted(RIGS))
 def test_lanes_match_the_one_character_kernel(monkeypatch, name):
-    """The lane kernels against fabrik_solve one character per thread with the rotations recovered once (the path
-    the adapter takes at one lane): the same status (but at the tolerance), iterations and pose up to the lanes'
-    reciprocal multiplies."""
+    """The lane kernels, at the machine's width and at one lane (CUDA's streams, joint-major scratch), against
+    fabrik_solve one character per thread with the rotations recovered once (CROWD_IK_FREE_LANES=0): the same
+    status (but at the tolerance), iterations and pose up to the lanes' reciprocal multiplies."""
     from crowd_ik.solvers import settings
 
     rig = RIGS[name]()
     L = settings.lanes()
     n = max(6 * L, 96) + 3  # partial last packets; enough characters for the shares below at 8 lanes too
-    got = []
-    for lanes in (L, 1):
-        monkeypatch.setattr(settings, "lanes", lambda lanes=lanes: lanes)
+
+    def run(lanes, free_lanes):
+        monkeypatch.setattr(settings, "lanes", lambda: lanes)
+        monkeypatch.setenv("CROWD_IK_FREE_LANES", free_lanes)
         crowd, _, targets, weights = _case(rig, n, seed=11)
         rep = crowd.solve(targets, weights=weights, max_iterations=40, tolerance=1e-4)
-        got.append((rep, crowd.joint_positions(), crowd.rotations(), crowd.world_rotations()))
-    (a, pa, qa, wa), (b, pb, qb, wb) = got
-    reachable = a.status != Status.UNREACHABLE
-    same = a.iterations == b.iterations
-    # characters that converge: the same count; those that stall far off (a tree's effectors pulled apart) stop
-    # where float32 rounding decides the "no progress" test, a few iterations apart (on 1,000: 97 % the same, at
-    # 8 and 16 lanes alike)
-    assert np.mean(same[a.status == Status.CONVERGED]) >= 0.95 and np.mean(same[reachable]) >= 0.85
-    # the same status, but for a character that ends at the tolerance (float32 rounding decides it)
-    edge = (np.abs(a.error - 1e-4) <= 1e-6) & (np.abs(b.error - 1e-4) <= 1e-6)
-    assert np.mean(edge) <= 0.05
-    # and STALLED against MAX_ITERATIONS for a character that stopped at another count (both not converged)
-    stop = (Status.STALLED, Status.MAX_ITERATIONS)
-    swap = ~same & np.isin(a.status, stop) & np.isin(b.status, stop)
-    assert np.mean(swap) <= 0.05
-    keep = reachable & ~edge & ~swap
-    np.testing.assert_array_equal(a.status[keep], b.status[keep])
-    for x, y in ((pa, pb), (qa, qb), (wa, wb)):
-        np.testing.assert_allclose(x[same], y[same], atol=1e-4)
+        return rep, crowd.joint_positions(), crowd.rotations(), crowd.world_rotations()
+
+    b, pb, qb, wb = run(L, "0")
+    for lanes in sorted({L, 1}):
+        a, pa, qa, wa = run(lanes, "1")
+        reachable = a.status != Status.UNREACHABLE
+        same = a.iterations == b.iterations
+        # characters that converge: the same count; those that stall far off (a tree's effectors pulled apart) stop
+        # where float32 rounding decides the "no progress" test, a few iterations apart (on 1,000: 97 % the same, at
+        # 8 and 16 lanes alike)
+        assert np.mean(same[a.status == Status.CONVERGED]) >= 0.95 and np.mean(same[reachable]) >= 0.85
+        # the same status, but for a character that ends at the tolerance (float32 rounding decides it)
+        edge = (np.abs(a.error - 1e-4) <= 1e-6) & (np.abs(b.error - 1e-4) <= 1e-6)
+        assert np.mean(edge) <= 0.05
+        # and STALLED against MAX_ITERATIONS for a character that stopped at another count (both not converged)
+        stop = (Status.STALLED, Status.MAX_ITERATIONS)
+        swap = ~same & np.isin(a.status, stop) & np.isin(b.status, stop)
+        assert np.mean(swap) <= 0.05
+        keep = reachable & ~edge & ~swap
+        np.testing.assert_array_equal(a.status[keep], b.status[keep])
+        for x, y in ((pa, pb), (qa, qb), (wa, wb)):
+            np.testing.assert_allclose(x[same], y[same], atol=1e-4)
 
 
 def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
@@ -119,29 +123,30 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
         np.testing.assert_array_equal(one.joint_positions()[0], pos[i])
         np.testing.assert_array_equal(one.rotations()[0], rot[i])
         np.testing.assert_array_equal(one.world_rotations()[0], wrot[i])
-    # the kernels themselves with other stream counts
+    # the kernels themselves with other stream counts, and at one lane with either scratch layout
+    from crowd_ik.solvers.fabrik_free import lane_layout
+
     L, ra, ti = settings.lanes(), crowd.rig_arrays, crowd.ti
-    LP, P, J, E = lane_plan.pass_lanes(L), lane_plan.packets(n, L), rig.n_joints, rig.n_effectors
+    LP, default_streams, layout = lane_layout(n)
+    P, J, E = lane_plan.packets(n, L), rig.n_joints, rig.n_effectors
     V = ti.types.vector(L, ti.f32)
-    # with the default stream count first: at one lane (CUDA) the batch above ran the general kernel instead
-    # (solvers/fabrik.py), so there the lane kernels' own default result is the reference
-    reference = None
-    for streams, serial in ((lane_plan.streams(n, LP), False), (1, False), (2, True)):
+    runs = [(default_streams, False, layout), (1, False, layout), (2, True, layout)]
+    if L == 1:  # CUDA's joint-major scratch and the CPU's stream-major one: the same arithmetic
+        runs.append((3, False, (lane_plan.MAX_STREAMS, False)))
+    for streams, serial, lay in runs:
         crowd.set_angles(angles)
         crowd.buffers.targets[...] = targets
         crowd.buffers.weights[...] = weights
         proposals = [ti.ndarray(V, shape=(P, J)) for _ in range(3)]
-        fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E))(
+        fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), *lay)(
             ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
             *bundles.goal(crowd, orientations=False),
             streams, *proposals, 40, 1e-4, *bundles.result(crowd), serial)
-        fabrik_lanes.free_recover(L, lane_plan.capacity(J))(
+        fabrik_lanes.free_recover(L, lane_plan.capacity(J), *lay)(
             ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
             *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, streams,
             crowd.buffers.error, crowd.buffers.iterations, serial)
         got = (crowd.buffers.iterations.copy(), crowd.buffers.error.copy(), crowd.joint_positions(),
                crowd.rotations(), crowd.world_rotations())
-        if reference is None:
-            reference = got if L == 1 else (batch.iterations, batch.error, pos, rot, wrot)
-        for a, b in zip(got, reference):
+        for a, b in zip(got, (batch.iterations, batch.error, pos, rot, wrot)):
             np.testing.assert_array_equal(a, b)

@@ -16,6 +16,14 @@ def test_small_launches_are_serial_and_large_ones_parallel():
     assert sl.serial_for(sl.SERIAL_WORK) and not sl.serial_for(sl.SERIAL_WORK + 1)
 
 
+def test_nothing_is_serial_on_cuda(monkeypatch):
+    """On CUDA a serialised loop would run on one GPU thread."""
+    from crowd_ik.solvers import settings
+
+    monkeypatch.setitem(settings._LANES, "arch", "cuda")
+    assert settings.on_gpu() and not sl.serial_for(0) and not sl.serial_for(40, sl.POSE)
+
+
 def _state(world):
     c, b = world.characters, world.bullets
     return [c.joints.copy(), c.alive.copy(), c.lean.copy(), c.crowd.local_rot.to_numpy(), world.shooters.joints.copy(),

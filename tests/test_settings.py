@@ -37,6 +37,7 @@ def test_init_records_the_lane_width():
 
     crowd_ik.init()  # already running (the session fixture): returns its arch
     assert settings.lanes() == crowd_ik.runtime.current()["lanes"] in settings.LANE_CHOICES
+    assert settings.on_gpu() == (crowd_ik.runtime.current()["arch"] == "cuda")
     with pytest.raises(RuntimeError, match="lanes"):
         crowd_ik.init(lanes=32 if settings.lanes() != 32 else 16)
 

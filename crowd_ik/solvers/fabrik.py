@@ -1,11 +1,12 @@
 """FABRIK for a Crowd: which kernel solves a request, and its launch.
 
-A constraint-free rig without orientation targets runs the lane kernels (solvers/fabrik_free.py, kernels/fabrik_lanes.py:
-characters as SIMD lanes, then the rotations recovered in a second pass). Any other rig whose characters all
-weight the same effectors (or none), with or without orientation targets, runs kernels/fabrik_limited_lanes.py
-(settings.limited_lanes: how closely it agrees with the general kernel; CROWD_IK_LIMITED_LANES=0 turns it off);
-everything else (rotation targets, weights that differ in which effectors they switch off), and CUDA (one lane),
-the general one-character-per-thread kernel (kernels/fabrik.py), which also solves full rotation targets
+A constraint-free rig without orientation targets runs the lane kernels (solvers/fabrik_free.py,
+kernels/fabrik_lanes.py: characters as SIMD lanes, or on CUDA a stream of characters per GPU thread, then the
+rotations recovered in a second pass). Any other rig whose characters all weight the same effectors (or none), with
+or without orientation targets, runs kernels/fabrik_limited_lanes.py on the CPU (settings.limited_lanes: how closely
+it agrees with the general kernel; CROWD_IK_LIMITED_LANES=0 turns it off); everything else (rotation targets,
+weights that differ in which effectors they switch off, CUDA's rigs with limits or orientation targets), the
+general one-character-per-thread kernel (kernels/fabrik.py), which also solves full rotation targets
 (kernels/fabrik_rotation.py).
 """
 
@@ -25,10 +26,10 @@ def solve(crowd, req) -> None:
         _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=1, req=req)
         return
     if crowd.rig.constraint_free and crowd.buffers.orient_zero:
-        if settings.lanes() == 1:  # CUDA: one character per GPU thread, the rotations recovered once
-            _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=0)
-        else:
+        if settings.free_lanes():
             solve_free(crowd, req.max_iterations, req.tolerance)
+        else:  # one character per thread, the rotations recovered once
+            _general(crowd, req.max_iterations, req.tolerance, recover_each_iteration=0)
         return
     active = lane_active(crowd, req)
     if active is not None:

@@ -1,5 +1,5 @@
 """Constraint-free FABRIK for a Crowd without orientation targets: the lane kernels' launch (kernels/fabrik_lanes.py,
-characters as SIMD lanes, then the rotations recovered in a second pass)."""
+characters as SIMD lanes, then the rotations recovered in a second pass; on CUDA one lane per GPU thread)."""
 
 from __future__ import annotations
 
@@ -8,26 +8,40 @@ from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 
 
+def lane_layout(n: int) -> tuple[int, int, tuple]:
+    """(lanes per stream of the solve kernel, streams, the factories' layout arguments) for n characters. At one
+    lane (CUDA) a stream is one GPU thread working through its characters one at a time, lane_plan.GPU_STREAMS of
+    them with their scratch joint-major (lane_plan.stream_rows: a warp's threads read a joint's row together);
+    the CPU's lanes keep the factories' defaults."""
+    from crowd_ik.kernels import lane_plan
+
+    L = settings.lanes()
+    if L > 1:
+        LP = lane_plan.pass_lanes(L)
+        return LP, lane_plan.streams(n, LP), ()
+    cap = lane_plan.GPU_STREAMS if settings.on_gpu() else lane_plan.MAX_STREAMS
+    return 1, min(n, cap), (cap, True)
+
+
 def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
-    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations
-    (CPU lanes only: solvers/fabrik.solve sends one lane, CUDA, to the general kernel)."""
+    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
     from crowd_ik.kernels import fabrik_lanes, lane_plan
 
     ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
     J, E = crowd.rig.n_joints, crowd.rig.n_effectors
-    LP = lane_plan.pass_lanes(L)
     P = lane_plan.packets(crowd.n, L)
+    LP, n_streams, layout = lane_layout(crowd.n)
     V = ti.types.vector(L, ti.f32)
     proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz")]
     b = crowd.buffers
     serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
-    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E)))(
+    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), *layout))(
         ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
-        *bundles.goal(crowd, orientations=False),
-        lane_plan.streams(crowd.n, LP), *proposals, max_iterations, tolerance, *bundles.result(crowd), serial,
+        *bundles.goal(crowd, orientations=False), n_streams, *proposals, max_iterations, tolerance,
+        *bundles.result(crowd), serial,
     )
-    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J)))(
+    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J), *layout))(
         ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
         *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
-        min(P, lane_plan.MAX_STREAMS), b.error, b.iterations, serial,
+        min(P, layout[0] if layout else lane_plan.MAX_STREAMS), b.error, b.iterations, serial,
     )

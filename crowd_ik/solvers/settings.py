@@ -117,9 +117,15 @@ def choose_lanes(arch: str, requested: int | None = None) -> int:
     return 1 if arch == "cuda" else cpu_vector_lanes()
 
 
-def set_lanes(lanes: int) -> None:
-    """Record the lane width (called once by crowd_ik.runtime.init)."""
+def set_lanes(lanes: int, arch: str = "cpu") -> None:
+    """Record the lane width and the backend (called once by crowd_ik.runtime.init)."""
     _LANES["L"] = parse_lanes(lanes, "lanes")
+    _LANES["arch"] = arch
+
+
+def on_gpu() -> bool:
+    """Whether Taichi runs on CUDA (the free FABRIK lanes then size their streams for a GPU: kernels/lane_plan.py)."""
+    return _LANES.get("arch") == "cuda"
 
 
 def lanes() -> int:
@@ -146,6 +152,13 @@ def limited_lanes() -> int:
     if os.environ.get("CROWD_IK_LIMITED_LANES", "1") == "0":
         return 0
     return min(lanes(), LIMITED_LANES_MAX)
+
+
+def free_lanes() -> bool:
+    """Whether constraint-free FABRIK runs the lane kernels (kernels/fabrik_lanes.py): at L lanes on the CPU, and at
+    one lane on CUDA, a stream per GPU thread with its scratch joint-major (coalesced); CROWD_IK_FREE_LANES=0 sends
+    it to the one-character kernel (kernels/fabrik.py) instead, on either backend (for comparison)."""
+    return os.environ.get("CROWD_IK_FREE_LANES", "1") != "0"
 
 
 def general_lanes() -> int:
