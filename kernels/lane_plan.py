@@ -30,9 +30,14 @@ def capacity(n: int) -> int:
     return 1 << max(2, (n - 1).bit_length())
 
 
-def streams(n: int, lanes: int) -> int:
+def streams(n: int, lanes: int, serial: bool = False) -> int:
     """Streams for n characters: about CHARS_PER_LANE characters per lane, at least as many as packets up to 8
-    (small crowds still use every thread), at most MAX_STREAMS."""
+    (small crowds still use every thread), at most MAX_STREAMS; one for a launch that runs on one thread
+    (kernels/serial_loops.py): its lanes then refill from every character, and the work is the crowd's total
+    iterations over the lanes plus one tail instead of a tail per stream (chain16 FABRIK on one thread, 100 / 480
+    characters, 4 / 8 streams -> 1: 146 -> 90 / 314 -> 233 us)."""
+    if serial:
+        return 1
     return max(1, min(packets(n, lanes), max(8, packets(n, lanes * CHARS_PER_LANE)), MAX_STREAMS))
 
 

@@ -201,9 +201,10 @@ def _free(crowd, req) -> None:
                                           cfg["length"], *bundles.result(crowd), rig.n_joints)
         return
     # one vector per value (L lanes): 2L ran 12 % faster but took 31 s instead of ~10 s to compile
+    serial = serial_for(crowd.n * rig.n_joints, CHAIN_JOINT)  # a small crowd on one thread
     prepared(dls_lanes.free_solver(L, lane_plan.capacity(rig.n_joints)))(
-        *head, lane_plan.streams(crowd.n, L), req.max_iterations, req.tolerance, cfg["damping"], cfg["length"],
-        *bundles.result(crowd), serial_for(crowd.n * rig.n_joints, CHAIN_JOINT),  # a small crowd on one thread
+        *head, lane_plan.streams(crowd.n, L, serial), req.max_iterations, req.tolerance, cfg["damping"],
+        cfg["length"], *bundles.result(crowd), serial,
     )
 
 

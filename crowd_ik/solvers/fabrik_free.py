@@ -8,8 +8,9 @@ from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 
 
-def lane_layout(n: int) -> tuple[int, int, tuple]:
-    """(lanes per stream of the solve kernel, streams, the factories' layout arguments) for n characters. At one
+def lane_layout(n: int, serial: bool = False) -> tuple[int, int, tuple]:
+    """(lanes per stream of the solve kernel, streams, the factories' layout arguments) for n characters, solved
+    on the launching thread if serial (kernels/serial_loops.py; one stream, lane_plan.streams). At one
     lane (CUDA) a stream is one GPU thread working through its characters one at a time, lane_plan.GPU_STREAMS of
     them with their scratch joint-major (lane_plan.stream_rows: a warp's threads read a joint's row together);
     the CPU's lanes keep the factories' defaults."""
@@ -18,7 +19,7 @@ def lane_layout(n: int) -> tuple[int, int, tuple]:
     L = settings.lanes()
     if L > 1:
         LP = lane_plan.pass_lanes(L)
-        return LP, lane_plan.streams(n, LP), ()
+        return LP, lane_plan.streams(n, LP, serial), ()
     cap = lane_plan.GPU_STREAMS if settings.on_gpu() else lane_plan.MAX_STREAMS
     return 1, min(n, cap), (cap, True)
 
@@ -30,11 +31,11 @@ def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
     ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
     J, E = crowd.rig.n_joints, crowd.rig.n_effectors
     P = lane_plan.packets(crowd.n, L)
-    LP, n_streams, layout = lane_layout(crowd.n)
+    serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
+    LP, n_streams, layout = lane_layout(crowd.n, serial)
     V = ti.types.vector(L, ti.f32)
     proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz")]
     b = crowd.buffers
-    serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
     prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), *layout))(
         ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
         *bundles.goal(crowd, orientations=False), n_streams, *proposals, max_iterations, tolerance,
