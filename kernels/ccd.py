@@ -38,7 +38,7 @@ from crowd_ik.kernels.ccd_steps import (
 )
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, swing, vec3, vec4, yaw_quat
 from crowd_ik.kernels.rotation_goals import rotation_error, turn_error
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.solvers.settings import CCD_FLAT as FLAT
 from crowd_ik.solvers.settings import CCD_STALL_AFTER as STALL_AFTER
 
@@ -211,7 +211,7 @@ def ccd_solve(
     """
     stride = spread_stride(root_pos.shape[0])
     for slot in range(root_pos.shape[0] * stride):  # (kernels/work_split.py: small crowds on every thread)
-        if slot % stride != 0:
+        if skipped(slot, stride):
             continue
         i = slot // stride
         # work relative to the root, so a character's result does not depend on where it stands

@@ -28,7 +28,7 @@ from crowd_ik.kernels import lane_trig as lt
 from crowd_ik.kernels.ccd_lane_steps import lane_steps
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.quat import qmul, qrot, yaw_quat
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.solvers.settings import CCD_FLAT as FLAT
 from crowd_ik.solvers.settings import CCD_STALL_AFTER as STALL_AFTER
 
@@ -253,7 +253,7 @@ def ccd_solver(L: int, max_joints: int, max_effectors: int, limited: bool):
         E = eff_joint.shape[0]
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none

@@ -36,7 +36,7 @@ from crowd_ik.kernels.dls_pose import first_bone
 from crowd_ik.kernels.dls_lane_rows import row_builder
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
 from crowd_ik.kernels.quat import joint_angles, yaw_quat
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.solvers.settings import (
     DLS_DAMPING_MIN as DAMPING_MIN, DLS_ESCAPE_ATTEMPTS as ESCAPE_ATTEMPTS, DLS_FLAT as FLAT, DLS_LAM_CAP as LAM_CAP,
     DLS_MAX_ESCAPES as MAX_ESCAPES, DLS_NULL_BAND as NULL_BAND, DLS_NULL_STEP as NULL_STEP, DLS_PROGRESS as PROGRESS,
@@ -284,7 +284,7 @@ def general_solver(L: int, max_joints: int, max_cols: int, max_rows: int, max_ef
         mu2 = (DAMPING_MIN * length) * (DAMPING_MIN * length)  # the null-space projector's damping
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none

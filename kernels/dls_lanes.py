@@ -19,7 +19,7 @@ import taichi as ti
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.lane_plan import MAX_STREAMS
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.kernels.dls_free import objective
 from crowd_ik.kernels.quat import qconj, qmul, qnormalize, qrot, yaw_quat
 from crowd_ik.solvers.settings import (
@@ -174,7 +174,7 @@ def free_solver(L: int, max_joints: int):
         stride = spread_stride(n_streams)
         ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)

@@ -52,7 +52,7 @@ import taichi as ti
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, stream_rows
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
 ndarray = ti.types.ndarray
@@ -101,7 +101,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int, streams: i
         stride = spread_stride(n_streams)
         ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none
@@ -281,7 +281,7 @@ def free_recover(L: int, max_joints: int, streams: int = MAX_STREAMS, joint_majo
         stride = spread_stride(n_streams)
         ti.loop_config(serialize=serial)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, first, end = ls.stream_range(slot, stride, P, n_streams)
             for p in range(first, end):

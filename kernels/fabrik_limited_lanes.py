@@ -34,7 +34,7 @@ from crowd_ik.kernels import lane_streams as ls
 from crowd_ik.kernels.compile_settings import with_opt_level0
 from crowd_ik.kernels.fabrik_lane_joints import joint_steps
 from crowd_ik.kernels.lane_plan import MAX_STREAMS, lane_rows
-from crowd_ik.kernels.work_split import spread_stride
+from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.kernels.quat import qrot, yaw_quat
 
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT
@@ -218,7 +218,7 @@ def limited_solver(L: int, max_joints: int, max_effectors: int):
         E = eff_joint.shape[0]
         stride = spread_stride(n_streams)
         for slot in range(n_streams * stride):  # (kernels/work_split.py: the streams on every thread)
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s, nxt, end = ls.stream_range(slot, stride, N, n_streams)
             cur = Vi(-1)  # each lane's character, -1 for none

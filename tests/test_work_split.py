@@ -9,7 +9,7 @@ import pytest
 def kernels():
     import taichi as ti
 
-    from crowd_ik.kernels.work_split import banded_count, banded_item, spread_stride
+    from crowd_ik.kernels.work_split import banded_count, banded_item, skipped, spread_stride
 
     @ti.kernel
     def visit(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1)):
@@ -23,7 +23,7 @@ def kernels():
     def threads_of(n: ti.i32, thread: ti.types.ndarray(dtype=ti.i32, ndim=1), out: ti.types.ndarray(ndim=1)):
         stride = spread_stride(n)
         for slot in range(n * stride):
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             s = slot // stride
             thread[s] = ti.global_thread_idx()
@@ -88,13 +88,13 @@ def test_few_heavy_items_spread_by_stride_use_several_threads(kernels):
 def test_spread_loop_visits_every_item_once(n):
     import taichi as ti
 
-    from crowd_ik.kernels.work_split import SPREAD_ITEMS, spread_stride
+    from crowd_ik.kernels.work_split import SPREAD_ITEMS, skipped, spread_stride
 
     @ti.kernel
     def visit(n: ti.i32, seen: ti.types.ndarray(dtype=ti.i32, ndim=1)) -> ti.i32:
         stride = spread_stride(n)
         for slot in range(n * stride):
-            if slot % stride != 0:
+            if skipped(slot, stride):
                 continue
             ti.atomic_add(seen[slot // stride], 1)
         return n * stride
@@ -102,4 +102,4 @@ def test_spread_loop_visits_every_item_once(n):
     seen = np.zeros(n, dtype=np.int32)
     iterations = visit(n, seen)
     np.testing.assert_array_equal(seen, np.ones(n, dtype=np.int32))
-    assert iterations >= SPREAD_ITEMS and (n < SPREAD_ITEMS or iterations == n)
+    assert iterations >= SPREAD_ITEMS and (n < SPREAD_ITEMS or iterations == n) and iterations < 2 * SPREAD_ITEMS
