@@ -150,3 +150,23 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
                crowd.rotations(), crowd.world_rotations())
         for a, b in zip(got, (batch.iterations, batch.error, pos, rot, wrot)):
             np.testing.assert_array_equal(a, b)
+
+
+def test_the_stream_plan_per_backend(monkeypatch):
+    """solvers/fabrik_free.lane_layout: the CPU's lanes keep the factories' defaults (two vectors per value, a stream
+    per ~32 characters a lane, one stream on one thread); one lane on CUDA runs a stream per GPU thread over
+    GPU_STREAMS joint-major rows; one lane on the CPU (CUDA's configuration, for the tests) the same layout in
+    MAX_STREAMS rows."""
+    from crowd_ik.kernels import lane_plan
+    from crowd_ik.solvers import settings
+    from crowd_ik.solvers.fabrik_free import lane_layout
+
+    monkeypatch.setattr(settings, "lanes", lambda: 16)
+    assert lane_layout(100_000) == (32, lane_plan.streams(100_000, 32), ()) and lane_plan.streams(100_000, 32) > 8
+    assert lane_layout(100, serial=True) == (32, 1, ())
+    monkeypatch.setattr(settings, "lanes", lambda: 1)
+    cpu = lane_plan.MAX_STREAMS
+    assert lane_layout(100_000) == (1, cpu, (cpu, True)) and lane_layout(9) == (1, 9, (cpu, True))
+    monkeypatch.setitem(settings._LANES, "arch", "cuda")
+    gpu = lane_plan.GPU_STREAMS
+    assert lane_layout(1_000_000) == (1, gpu, (gpu, True)) and lane_layout(10_000) == (1, 10_000, (gpu, True))
