@@ -21,10 +21,11 @@ no Taichi state; crowd_ik/solvers/settings.py chooses the machine's width L):
   joint, from local vectors (a lane of a local vector is one load; a lane of a field row reloads the
   field's base after every store to an ndarray).
 
-The streams' scratch lives in fields of compile-time shape (MAX_STREAMS rows of a power-of-two joint
-capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after every store to any array,
-and that integer work was a third of the passes' instructions (chain16, 16,384 characters: 13.9 -> 8.8
-ms). Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's passes and
+The streams' scratch lives in fields of compile-time shape (a row per stream, lane_plan.MAX_STREAMS of them on the
+CPU, of a power-of-two joint capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after every
+store to any array, and that integer work was a third of the passes' instructions (chain16, 16,384 characters: 13.9
+-> 8.8 ms). On CUDA (one lane) a stream is a GPU thread, lane_plan.GPU_STREAMS of them, and the rows are laid out
+joint-major so that a warp's reads of one joint coalesce (lane_plan.stream_rows). Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's passes and
 recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same order, except that a
 normalisation multiplies by one reciprocal (kernels/lane_math.py), so statuses and iteration counts
 match it and results do not depend on a character's lane-mates.
@@ -51,7 +52,7 @@ import taichi as ti
 
 from crowd_ik.kernels import lane_math as lm
 from crowd_ik.kernels import lane_streams as ls
-from crowd_ik.kernels.lane_plan import MAX_STREAMS, stream_rows
+from crowd_ik.kernels.lane_plan import stream_rows
 from crowd_ik.kernels.work_split import skipped, spread_stride
 from crowd_ik.solvers.settings import FABRIK_FLAT as FLAT, FABRIK_STALL_AFTER as STALL_AFTER, SWING_ROUNDS
 
@@ -60,8 +61,7 @@ vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
 @functools.cache
-def free_solver(L: int, LO: int, max_joints: int, max_effectors: int, streams: int = MAX_STREAMS,
-                joint_major: bool = False):
+def free_solver(L: int, LO: int, max_joints: int, max_effectors: int, streams: int, joint_major: bool):
     """The joint-moving kernel for L lanes per stream. Scratch per stream s (fields of max_joints and
     max_effectors rows for `streams` streams, laid out as lane_plan.stream_rows says): px, py, pz (pose), wx, wy,
     wz, aw (proposals and their weights), tx, ty, tz, tw (targets, weights). Output per character i in (P, J) rows
@@ -211,7 +211,7 @@ def free_solver(L: int, LO: int, max_joints: int, max_effectors: int, streams: i
 
 
 @functools.cache
-def free_recover(L: int, max_joints: int, streams: int = MAX_STREAMS, joint_major: bool = False):
+def free_recover(L: int, max_joints: int, streams: int, joint_major: bool):
     """The rotation-recovery kernel for lane width L: reads the proposals gx, gy, gz that free_solver left in
     (P, J) lane rows; each of at most `streams` streams keeps its packet's weights in field rows aw, its local
     rotations in lqx..lqw and its world pose in fx, fy, fz, fqx, fqy, fqz, fqw (laid out as free_solver's)."""

@@ -127,9 +127,10 @@ def test_a_character_gets_the_same_result_alone_in_any_lane_and_stream_count():
     from crowd_ik.solvers.fabrik_free import lane_layout
 
     L, ra, ti = settings.lanes(), crowd.rig_arrays, crowd.ti
-    LP, default_streams, layout = lane_layout(n)
+    LP, default_streams, cap, joint_major = lane_layout(n)
     P, J, E = lane_plan.packets(n, L), rig.n_joints, rig.n_effectors
     V = ti.types.vector(L, ti.f32)
+    layout = (cap, joint_major)
     runs = [(default_streams, False, layout), (1, False, layout), (2, True, layout)]
     if L == 1:  # CUDA's joint-major scratch and the CPU's stream-major one: the same arithmetic
         runs.append((3, False, (lane_plan.MAX_STREAMS, False)))
@@ -161,12 +162,11 @@ def test_the_stream_plan_per_backend(monkeypatch):
     from crowd_ik.solvers import settings
     from crowd_ik.solvers.fabrik_free import lane_layout
 
+    cpu, gpu = lane_plan.MAX_STREAMS, lane_plan.GPU_STREAMS
     monkeypatch.setattr(settings, "lanes", lambda: 16)
-    assert lane_layout(100_000) == (32, lane_plan.streams(100_000, 32), ()) and lane_plan.streams(100_000, 32) > 8
-    assert lane_layout(100, serial=True) == (32, 1, ())
+    assert lane_layout(100_000) == (32, lane_plan.streams(100_000, 32), cpu, False)
+    assert lane_plan.streams(100_000, 32) > 8 and lane_layout(100, serial=True) == (32, 1, cpu, False)
     monkeypatch.setattr(settings, "lanes", lambda: 1)
-    cpu = lane_plan.MAX_STREAMS
-    assert lane_layout(100_000) == (1, cpu, (cpu, True)) and lane_layout(9) == (1, 9, (cpu, True))
+    assert lane_layout(100_000) == (1, cpu, cpu, True) and lane_layout(9) == (1, 9, cpu, True)
     monkeypatch.setitem(settings._LANES, "arch", "cuda")
-    gpu = lane_plan.GPU_STREAMS
-    assert lane_layout(1_000_000) == (1, gpu, (gpu, True)) and lane_layout(10_000) == (1, 10_000, (gpu, True))
+    assert lane_layout(1_000_000) == (1, gpu, gpu, True) and lane_layout(10_000) == (1, 10_000, gpu, True)

@@ -8,20 +8,19 @@ from crowd_ik.prepared import prepared
 from crowd_ik.solvers import bundles, settings
 
 
-def lane_layout(n: int, serial: bool = False) -> tuple[int, int, tuple]:
-    """(lanes per stream of the solve kernel, streams, the factories' layout arguments) for n characters, solved
-    on the launching thread if serial (kernels/serial_loops.py; one stream, lane_plan.streams). At one
-    lane (CUDA) a stream is one GPU thread working through its characters one at a time, lane_plan.GPU_STREAMS of
-    them with their scratch joint-major (lane_plan.stream_rows: a warp's threads read a joint's row together);
-    the CPU's lanes keep the factories' defaults."""
+def lane_layout(n: int, serial: bool = False) -> tuple[int, int, int, bool]:
+    """(lanes per stream of the solve kernel, streams, scratch rows' streams, joint-major) for n characters, solved
+    on the launching thread if serial (kernels/serial_loops.py; one stream, lane_plan.streams). At one lane (CUDA) a
+    stream is one GPU thread working through its characters one at a time, lane_plan.GPU_STREAMS of them with their
+    scratch joint-major (lane_plan.stream_rows: a warp's threads read a joint's row together)."""
     from crowd_ik.kernels import lane_plan
 
     L = settings.lanes()
     if L > 1:
         LP = lane_plan.pass_lanes(L)
-        return LP, lane_plan.streams(n, LP, serial), ()
+        return LP, lane_plan.streams(n, LP, serial), lane_plan.MAX_STREAMS, False
     cap = lane_plan.GPU_STREAMS if settings.on_gpu() else lane_plan.MAX_STREAMS
-    return 1, min(n, cap), (cap, True)
+    return 1, min(n, cap), cap, True
 
 
 def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
@@ -32,17 +31,17 @@ def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
     J, E = crowd.rig.n_joints, crowd.rig.n_effectors
     P = lane_plan.packets(crowd.n, L)
     serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
-    LP, n_streams, layout = lane_layout(crowd.n, serial)
+    LP, n_streams, cap, joint_major = lane_layout(crowd.n, serial)
     V = ti.types.vector(L, ti.f32)
     proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz")]
     b = crowd.buffers
-    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), *layout))(
+    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), cap, joint_major))(
         ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
         *bundles.goal(crowd, orientations=False), n_streams, *proposals, max_iterations, tolerance,
         *bundles.result(crowd), serial,
     )
-    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J), *layout))(
+    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J), cap, joint_major))(
         ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals,
-        min(P, layout[0] if layout else lane_plan.MAX_STREAMS), b.error, b.iterations, serial,
+        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, min(P, cap), b.error,
+        b.iterations, serial,
     )
