@@ -24,10 +24,13 @@ BOX = 2.0  # a character's dodge targets, or its limb capsules and boxes
 JOINT = 0.1  # a joint's forward kinematics
 POSE = 5.0  # a humanoid's two planted legs, or its pole swivels
 # a joint of a constraint-free chain solved by the FABRIK or closed-form DLS lanes (a solve of ~8 iterations;
-# serial up to 481 chain16s). Chain16 from straight, median of 60 Crowd.solve calls, pool -> launching thread:
-# FABRIK 100 / 500 chains 505 -> 329 / 819 -> 650 us, DLS 444 -> 352 / 989 -> 890 us; from 1,000 (DLS) or 2,000
-# (FABRIK) chains the pool is faster
-CHAIN_JOINT = 0.5
+# serial up to 1,003 chain16s). Chain16 from straight, median of 60 Crowd.solve calls, pool -> launching thread:
+# stop 49 FABRIK 100 / 500 chains 505 -> 329 / 819 -> 650 us, DLS 444 -> 352 / 989 -> 890 us. Since a serial
+# launch runs one stream (kernels/lane_plan.py streams), stop 50, interleaved: 600 / 1,000 / 2,000 chains FABRIK
+# 866 -> 640 / 1,672 -> 1,095 / 2,152 -> 1,882 us, DLS 1,345 -> 1,042 / 1,670 -> 1,534 / 3,075 -> 2,966 us; from
+# 3,000 (DLS: 3,893 / 4,304) or 5,000 (FABRIK: 3,014 / 4,151) the pool is faster. The pool's hand-offs on this VM
+# vary from day to day, so the bound stays below both crossovers
+CHAIN_JOINT = 0.24
 
 
 def serial_for(items: float, weight: float = LIGHT) -> bool:

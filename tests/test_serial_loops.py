@@ -82,11 +82,11 @@ def test_forward_kinematics_picks_by_size_and_matches_either_way(n):
 @pytest.mark.parametrize("method", ["fabrik", "dls"])
 def test_chain_solves_are_the_same_on_the_launching_thread(monkeypatch, method):
     """The constraint-free FABRIK and closed-form DLS lanes run a small crowd's streams on the launching thread
-    (serial_for with CHAIN_JOINT: 100 chain16s serial, 2,000 not) and get the same bits as on the pool."""
+    (serial_for with CHAIN_JOINT: 100 and 1,000 chain16s serial, 2,000 not) and get the same bits as on the pool."""
     import crowd_ik as cik
     from crowd_ik.bench import workloads as w
 
-    assert sl.serial_for(100 * 17, sl.CHAIN_JOINT) and not sl.serial_for(2000 * 17, sl.CHAIN_JOINT)
+    assert sl.serial_for(1000 * 17, sl.CHAIN_JOINT) and not sl.serial_for(2000 * 17, sl.CHAIN_JOINT)
     wl = w.make_workload("chain16", 300)
     out = []
     for work in (float("inf"), -1.0):
