@@ -112,7 +112,7 @@ class Crowd:
         self.local_rot = ti.ndarray(vec4, shape=(N, J))
         self.world_pos = ti.ndarray(vec3, shape=(N, J))
         self.world_rot = ti.ndarray(vec4, shape=(N, J))
-        self._angles = ti.ndarray(ti.f32, shape=(N, max(D, 1)))
+        self._angles = np.zeros((N, max(D, 1)), np.float32)  # set_angles' and angles()' host buffer
         self.buffers = SolveBuffers(N, E)  # the solvers' inputs and outputs, reused by every solve
         self._scratch: dict[str, object] = {}
         self._every = np.arange(N, dtype=np.int32)
@@ -186,11 +186,10 @@ class Crowd:
         arr = _as_array(a, "angles", (self.n, D))
         from crowd_ik.kernels import fk
 
-        if D == 0:
-            arr = np.zeros((self.n, 1), np.float32)
-        self._angles.from_numpy(arr)
+        self._angles[:, :D] = arr
         ra = self.rig_arrays
-        fk.angles_to_rotations(ra["kind"], ra["axes"], ra["dof_start"], self._angles, self.local_rot)
+        prepared(fk.angles_to_rotations)(ra["kind"], ra["axes"], ra["dof_start"], self._angles, self.local_rot,
+                                         self._serial_fk())
         self._fk()
 
     def set_rotations(self, q) -> None:
@@ -208,14 +207,17 @@ class Crowd:
 
         ra = self.rig_arrays
         if which is None:  # every character: the crowd's own arrays, a prepared launch
-            from crowd_ik.kernels.serial_loops import JOINT, serial_for
-
-            J = self.rig.n_joints
             prepared(fk.fk_kernel)(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
-                                   self.world_pos, self.world_rot, self._every, J, serial_for(self.n * J, JOINT))
+                                   self.world_pos, self.world_rot, self._every, self.rig.n_joints, self._serial_fk())
             return
         fk.forward_kinematics(ra["parent"], ra["offset"], self.root_pos, self.root_yaw, self.local_rot,
                               self.world_pos, self.world_rot, which, self.rig.n_joints)
+
+    def _serial_fk(self) -> bool:
+        """Whether a per-joint launch over the whole crowd (FK, angle conversions) runs on the launching thread."""
+        from crowd_ik.kernels.serial_loops import JOINT, serial_for
+
+        return serial_for(self.n * self.rig.n_joints, JOINT)
 
     # ---------------------------------------------------------------- state out
     def angles(self) -> np.ndarray:
@@ -223,8 +225,9 @@ class Crowd:
         from crowd_ik.kernels import fk
 
         ra = self.rig_arrays
-        fk.rotations_to_angles(ra["kind"], ra["axes"], ra["dof_start"], self.local_rot, self._angles)
-        return self._angles.to_numpy()[:, : self.rig.n_dof].copy()
+        prepared(fk.rotations_to_angles)(ra["kind"], ra["axes"], ra["dof_start"], self.local_rot, self._angles,
+                                         self._serial_fk())
+        return self._angles[:, : self.rig.n_dof].copy()
 
     def rotations(self) -> np.ndarray:
         """(N, J, 4) float32 local joint rotations (x, y, z, w)."""

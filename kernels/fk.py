@@ -107,8 +107,11 @@ def angles_to_rotations(
     dof_start: ndarray(dtype=ti.i32, ndim=1),
     angles: ndarray(ndim=2),
     local_rot: ndarray(dtype=vec4, ndim=2),
+    serial: ti.template(),
 ):
-    """local_rot (N, J, 4) from angles (N, D) radians (ball joints: intrinsic XYZ Euler)."""
+    """local_rot (N, J, 4) from angles (N, D) radians (ball joints: intrinsic XYZ Euler); serial: on the launching
+    thread (kernels/serial_loops.py)."""
+    ti.loop_config(serialize=serial)
     for i, j in ti.ndrange(local_rot.shape[0], local_rot.shape[1]):
         local_rot[i, j] = row_joint_quat(kind, axes, dof_start, angles, i, j)
 
@@ -120,7 +123,9 @@ def rotations_to_angles(
     dof_start: ndarray(dtype=ti.i32, ndim=1),
     local_rot: ndarray(dtype=vec4, ndim=2),
     angles: ndarray(ndim=2),
+    serial: ti.template(),
 ):
-    """angles (N, D) radians from local_rot (N, J, 4)."""
+    """angles (N, D) radians from local_rot (N, J, 4); serial as in angles_to_rotations."""
+    ti.loop_config(serialize=serial)
     for i, j in ti.ndrange(local_rot.shape[0], local_rot.shape[1]):
         put_row_angles(kind, axes, dof_start, local_rot[i, j], angles, i, j)

@@ -77,6 +77,20 @@ def test_forward_kinematics_picks_by_size_and_matches_either_way(n):
                           crowd.world_rot, crowd._every, rig.n_joints)
     np.testing.assert_array_equal(crowd.world_pos.to_numpy(), got[0][0])
     assert sl.serial_for(n * rig.n_joints, sl.JOINT) == (n < 1000)
+    # set_angles' and angles()' conversions (a launch over every joint too): the same bits either way
+    angles = rng.normal(0.0, 0.4, (n, rig.n_dof)).astype(np.float32)
+    out = []
+    for serial in (False, True):
+        q = np.zeros((n, rig.n_joints, 4), np.float32)
+        back = np.zeros((n, rig.n_dof), np.float32)
+        fk.angles_to_rotations(ra["kind"], ra["axes"], ra["dof_start"], angles, q, serial)
+        fk.rotations_to_angles(ra["kind"], ra["axes"], ra["dof_start"], q, back, serial)
+        out.append((q, back))
+    for x, y in zip(*out):
+        np.testing.assert_array_equal(x, y)
+    crowd.set_angles(angles)
+    np.testing.assert_array_equal(crowd.rotations(), out[0][0])
+    np.testing.assert_array_equal(crowd.angles(), out[0][1])
 
 
 @pytest.mark.parametrize("method", ["fabrik", "dls"])
