@@ -28,7 +28,7 @@ def main() -> None:
     from crowd_ik.solvers import settings
 
     if args.arch == "cpu":  # the GPU's stream counts on the CPU (a dry run)
-        settings._LANES["arch"] = "cuda"
+        settings.set_lanes(1, "cuda")
     wl = w.make_workload("chain16", args.chars)
     crowd = cik.Crowd(wl.rig, wl.n, spacing=w.SPACING)
     for streams in (int(s) for s in args.streams.split(",")):
