@@ -304,6 +304,8 @@ def _recover(rig, root_pos, q_root, rot, pos, wrot, work, acc, weights, orient, 
                 if eff.joint != j:
                     continue
                 has = (weights[:, e] > 0) & (np.sum(orient[:, e] ** 2, -1) > 0)
+                if not np.any(has):  # an effector without an axis (eff_axis 0) has no rotation target to align
+                    continue
                 aligned = align_axis(joint.dof, np.array(joint.axes or [(0, 0, 1)] * 2), q,
                                      arr["eff_axis"][e].astype(np.float64), qrot(inv_base, orient[:, e]))
                 q = np.where(has[:, None], aligned, q)
