@@ -25,19 +25,24 @@ def as_array(value, name: str, shape: tuple, dtype=np.float32, limit: float | No
     """Broadcast ``value`` to ``shape`` as a C-contiguous array; refuse complex, NaN/inf, |x| > limit and bad
     shapes."""
     arr = np.asarray(value)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
-                                   or arr.dtype == bool):
+    if arr.dtype.kind not in "biuf":  # bool, signed, unsigned, float: not object, complex, text, dates
         raise ValueError(f"{name}: expected real numbers (got dtype {arr.dtype})")
-    try:
-        arr = np.broadcast_to(arr, shape)
-    except ValueError:
-        raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
+    if arr.shape != shape:
+        try:
+            arr = np.broadcast_to(arr, shape)
+        except ValueError:
+            raise ValueError(f"{name}: expected shape {shape} (got {np.shape(value)})") from None
     arr = np.ascontiguousarray(arr, dtype=dtype)
-    if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
-        bad = arr[~np.isfinite(arr)].flat[0]
-        raise ValueError(f"{name}: must be finite (got {bad})")
-    if limit is not None and arr.size and float(np.max(np.abs(arr))) > limit:
-        raise ValueError(f"{name}: must be within +-{limit:g} (got {float(arr.flat[np.argmax(np.abs(arr))])})")
+    if not arr.size:
+        return arr
+    floating = arr.dtype.kind == "f"
+    if floating or limit is not None:
+        peak = float(np.abs(arr).max())  # NaN when any is NaN, inf when any is inf: one pass for both checks
+        if floating and not math.isfinite(peak):
+            bad = arr[~np.isfinite(arr)].flat[0]
+            raise ValueError(f"{name}: must be finite (got {bad})")
+        if limit is not None and peak > limit:
+            raise ValueError(f"{name}: must be within +-{limit:g} (got {float(arr.flat[np.argmax(np.abs(arr))])})")
     return arr
 
 

@@ -87,10 +87,13 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
     tgt = as_array(targets, "targets", (n, E, dim), limit=MAX_EXTENT)
     if np.shape(targets) != (n, E, dim):
         raise ValueError(f"targets: expected shape {(n, E, dim)} (got {np.shape(targets)})")
-    w = np.ones((n, E), np.float32) if weights is None else as_array(weights, "weights", (n, E))
-    if np.any(w < 0):
-        raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
-    if not np.any(w > 0):
+    if weights is None:
+        w = np.ones((n, E), np.float32)
+    else:
+        w = as_array(weights, "weights", (n, E))
+        if np.any(w < 0):
+            raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
+    if not w.size or (weights is not None and not np.any(w > 0)):
         raise ValueError("weights: at least one effector needs a positive weight")
     orient = None
     if orientations is not None:
