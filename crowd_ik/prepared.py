@@ -6,13 +6,17 @@ the launch context), which for the game's 10-40-argument kernels is most of a sm
 (one per kernel) is called like the kernel `k`. It keeps the last few launch contexts keyed by the identity of the
 call's array arguments (ti.ndarrays and C-contiguous NumPy arrays) and its template values; the arrays are weakly
 referenced, and a context is dropped as soon as one of its arrays dies (the weak reference's callback), so an
-array born at a reused id never meets it and none is kept alive. On a match it sets the arrays (one C++ call each: a launch overwrites an ndarray's slot with its
-raw pointer) and the scalars, and launches the compiled kernel. A first call, other arrays and anything it does
-not handle (a return value, unsigned or vector scalars, a Fortran-ordered array, a gradient) go through the
-ordinary call, which also compiles and checks; arrays are bound the second time they are seen together, so
-fresh temporaries cost nothing more. On CUDA every call is the ordinary one: there Taichi's launcher copies host
-arrays to the device and back around each launch, and a kept context launched again crashed the process
-(segfaults in the solver tests and `play` on an H200; the cause inside Taichi was not traced). Bound arrays must not be resized in place (NumPy's ndarray.resize). The
+array born at a reused id never meets it and none is kept alive. Its array slots are set once, when the context
+is made, each by the array's host address (a ti.ndarray's too, as a NumPy array's): Taichi's CPU launcher
+(runtime/cpu/kernel_launcher.cpp) copies such a slot into the kernel's arguments on every launch and leaves it
+as it was, whereas a slot set as an ndarray it marks a raw-pointer slot on the first launch while the slot still
+holds the DeviceAllocation's address, so that one had to be set again before every launch (~1 us a slot, and 20
+slots per chain16 FABRIK solve). On a match it sets the scalars and launches the compiled kernel. A first call, other
+arrays and anything it does not handle (a return value, unsigned or vector scalars, a Fortran-ordered array, a
+gradient) go through the ordinary call, which also compiles and checks; arrays are bound the second time they
+are seen together, so fresh temporaries cost nothing more. On CUDA every call is the ordinary one: there
+Taichi's launcher copies host arrays to the device and back around each launch, and a kept context launched
+again crashed the process (segfaults in the solver tests and `play` on an H200; the cause inside Taichi was not traced). Bound arrays must not be resized in place (NumPy's ndarray.resize). The
 prepared launch runs the same compiled kernel on the same memory, so results are identical (tests/test_prepared.py).
 """
 
@@ -66,7 +70,7 @@ class Prepared:
         self._templates = _picker(templates)
         self._floats = [(p, (i,)) for p, (kind, i) in enumerate(self._slots) if kind == "float"]
         self._ints = [(p, (i,)) for p, (kind, i) in enumerate(self._slots) if kind == "int"]
-        self._contexts = OrderedDict()  # key -> (context, compiled kernel, program, weak refs, ndarrays, externals)
+        self._contexts = OrderedDict()  # key -> (context, compiled kernel, program, weak refs)
         self._seen = OrderedDict()  # keys launched once the ordinary way
 
     def __call__(self, *args):
@@ -84,11 +88,7 @@ class Prepared:
                     self._seen.popitem(last=False)
             return None
         self._contexts.move_to_end(key)
-        ctx, data, prog, _, ndarrays, externals = entry
-        for i, arr in ndarrays:
-            ctx.set_arg_ndarray(i, arr)
-        for i, ptr, nbytes, shape in externals:
-            ctx.set_arg_external_array_with_shape(i, ptr, nbytes, shape, 0)
+        ctx, data, prog, _ = entry  # the arrays' slots stay as _bind set them
         for p, i in self._floats:
             ctx.set_arg_float(i, float(args[p]))
         for p, i in self._ints:
@@ -108,26 +108,31 @@ class Prepared:
         from taichi.types import primitive_types
 
         primal = self._primal
-        refs, ndarrays, externals = [], [], []
+        prog = impl.get_runtime().prog
+        refs, arrays = [], []
         for (kind, i), a, arg in zip(self._slots, args, primal.arguments):
             if kind != "array":
                 continue
             if isinstance(a, Ndarray) and a.grad is None:
-                ndarrays.append(((i,), a.arr))
+                # by its host address, as a NumPy array's: a slot set so outlives launches (see the docstring)
+                arrays.append(((i,), prog.get_ndarray_data_ptr_as_int(a.arr), a.arr.element_size() * a.arr.nelement(),
+                               tuple(a.shape)))
             elif isinstance(a, np.ndarray) and a.flags.c_contiguous:
                 dtype = arg.annotation.dtype
                 element_dim = 0 if dtype is None or id(dtype) in primitive_types.type_ids else dtype.ndim
-                externals.append(((i,), int(a.ctypes.data), a.nbytes, tuple(a.shape[:a.ndim - element_dim])))
+                arrays.append(((i,), int(a.ctypes.data), a.nbytes, tuple(a.shape[:a.ndim - element_dim])))
             else:
                 return  # stays ordinary
             refs.append(weakref.ref(a, lambda _ref, key=key: self._forget(key)))
         instance, _ = primal.mapper.lookup(args)
         t_kernel = primal.compiled_kernels[(primal.func, instance, primal.autodiff_mode)]
-        prog = impl.get_runtime().prog
         with compile_settings(**getattr(self.kernel, "compile_settings", {})):
             # under the settings of the ordinary call that compiled it (kernels/compile_settings.py)
             data = prog.compile_kernel(prog.config(), prog.get_device_caps(), t_kernel)
-        self._contexts[key] = (t_kernel.make_launch_context(), data, prog, refs, ndarrays, externals)
+        ctx = t_kernel.make_launch_context()
+        for i, ptr, nbytes, shape in arrays:
+            ctx.set_arg_external_array_with_shape(i, ptr, nbytes, shape, 0)
+        self._contexts[key] = (ctx, data, prog, refs)
         while len(self._contexts) > CONTEXTS:
             self._contexts.popitem(last=False)
 

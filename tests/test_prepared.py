@@ -68,3 +68,31 @@ def test_prepared_launch_follows_other_arrays_and_forgets_dead_ones():
     want_s, want_p = np.zeros_like(pts), np.zeros_like(pts)
     gk.separate(pts, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.1, want_s, want_p, False)
     np.testing.assert_array_equal(push, want_p)
+
+
+def test_prepared_launch_on_taichi_ndarrays_sees_their_new_values():
+    """ti.ndarray arguments are bound by their host address once: launches after other kernels wrote the ndarrays
+    (from_numpy, an ordinary launch of another kernel) read and write the same memory as ordinary launches."""
+    runtime.ensure_init()
+    import taichi as ti
+
+    from crowd_ik.kernels import gait_kernels as gk
+
+    rng = np.random.default_rng(2)
+    pts, radius, kind, order, start = _separate_inputs(rng)
+    m = len(pts)
+    pts_nd = ti.ndarray(ti.math.vec2, m)
+    push_nd = ti.ndarray(ti.math.vec2, m)
+    steer = np.zeros_like(pts)
+    launch = Prepared(gk.separate)
+    for k in range(4):
+        pts_nd.from_numpy(rng.uniform(-4.0, 4.0, pts.shape).astype(np.float32))
+        push_nd.fill(7.0)  # stale values the launch must overwrite
+        launch(pts_nd, radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.0, steer, push_nd, False)
+        got_s, got_p = steer.copy(), push_nd.to_numpy()
+        want_s, want_p = np.zeros_like(pts), np.zeros_like(pts)
+        gk.separate(pts_nd.to_numpy(), radius, kind, order, start, -4.0, -4.0, 8.0, 1, 1, 1.0, want_s, want_p, False)
+        np.testing.assert_array_equal(got_s, want_s)
+        np.testing.assert_array_equal(got_p, want_p)
+        assert np.any(got_p != 7.0)
+    assert len(launch._contexts) == 1
