@@ -23,25 +23,36 @@ def lane_layout(n: int, serial: bool = False) -> tuple[int, int, int, bool]:
     return 1, min(n, cap), cap, True
 
 
-def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
-    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
+def _plan(crowd) -> tuple:
+    """(serial, streams, packets, proposals, solve kernel, recover kernel, recover's streams) of this crowd at the
+    current lane width, made once per width (a solve of 100 chains is ~130 us: the plan's ~10 us counted)."""
     from crowd_ik.kernels import fabrik_lanes, lane_plan
 
-    ra, ti, L = crowd.rig_arrays, crowd.ti, settings.lanes()
-    J, E = crowd.rig.n_joints, crowd.rig.n_effectors
-    P = lane_plan.packets(crowd.n, L)
-    serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
-    LP, n_streams, cap, joint_major = lane_layout(crowd.n, serial)
-    V = ti.types.vector(L, ti.f32)
-    proposals = [crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz")]
-    b = crowd.buffers
-    prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), cap, joint_major))(
-        ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
-        *bundles.goal(crowd, orientations=False), n_streams, *proposals, max_iterations, tolerance,
-        *bundles.result(crowd), serial,
-    )
-    prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J), cap, joint_major))(
-        ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
-        *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, min(P, cap), b.error,
-        b.iterations, serial,
-    )
+    L = settings.lanes()
+    key = (L, settings.on_gpu())
+    plans = crowd.__dict__.setdefault("_fabrik_free_plans", {})
+    plan = plans.get(key)
+    if plan is None:
+        J, E = crowd.rig.n_joints, crowd.rig.n_effectors
+        P = lane_plan.packets(crowd.n, L)
+        serial = serial_for(crowd.n * J, CHAIN_JOINT)  # a small crowd on the launching thread
+        LP, n_streams, cap, joint_major = lane_layout(crowd.n, serial)
+        V = crowd.ti.types.vector(L, crowd.ti.f32)
+        proposals = tuple(crowd.scratch(f"fabrik_lanes_{k}", V, (P, J)) for k in ("gx", "gy", "gz"))
+        solver = prepared(fabrik_lanes.free_solver(LP, L, lane_plan.capacity(J), lane_plan.capacity(E), cap,
+                                                   joint_major))
+        recover = prepared(fabrik_lanes.free_recover(L, lane_plan.capacity(J), cap, joint_major))
+        plan = plans[key] = (serial, n_streams, proposals, solver, recover, min(P, cap))
+    return plan
+
+
+def solve_free(crowd, max_iterations: int, tolerance: float) -> None:
+    """FABRIK on a constraint-free rig: characters as SIMD lanes (kernels/fabrik_lanes.py), then the rotations."""
+    serial, n_streams, proposals, solver, recover, recover_streams = _plan(crowd)
+    ra, b = crowd.rig_arrays, crowd.buffers
+    solver(ra["parent"], ra["bone"], ra["eff_joint"], crowd.world_pos, crowd.root_pos,
+           *bundles.goal(crowd, orientations=False), n_streams, *proposals, max_iterations, tolerance,
+           *bundles.result(crowd), serial)
+    recover(ra["parent"], ra["offset"], ra["bone"], ra["kind"], ra["child_start"], ra["child_list"], ra["eff_joint"],
+            *bundles.pose(crowd), *bundles.goal(crowd, orientations=False), *proposals, recover_streams, b.error,
+            b.iterations, serial)
