@@ -165,6 +165,19 @@ def test_crowd_bytes_grow_per_character():
     assert one >= 10 * rig.n_joints * (3 + 4 + 4 + 3) * 4  # root, local/world rotations, positions at least
 
 
+def test_crowd_bytes_count_each_array_once():
+    """The free FABRIK lanes keep their plan (solvers/fabrik_free.py), which holds the crowd's scratch arrays:
+    the measured memory is the same with or without it."""
+    from crowd_ik import Crowd, Rig
+
+    rig = Rig.chain(16, 0.1, dim=3)
+    crowd = Crowd(rig, 40, spacing=2.0)
+    crowd.solve(crowd.effector_positions() + np.float32([0.3, -0.2, 0.1]), method="fabrik")
+    total = workloads.crowd_bytes(crowd)
+    assert crowd.__dict__.pop("_fabrik_free_plans")
+    assert workloads.crowd_bytes(crowd) == total
+
+
 def test_baseline_full_cell_and_budget():
     base = baseline.Baseline(repeats=2, budget=30.0)
     assert base.measure("chain16", "fabrik", 30) == 30

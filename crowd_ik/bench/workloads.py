@@ -114,27 +114,36 @@ def _ms_stats(values_ms) -> dict:
 
 # ------------------------------------------------------------------------------------------------ Taichi side (child)
 
-def _ndarray_bytes(obj) -> int:
-    """Bytes held by the ti.ndarrays and NumPy arrays in `obj` (an array, or a dict / list of them)."""
+def _ndarray_bytes(obj, seen: set) -> int:
+    """Bytes held by the ti.ndarrays and NumPy arrays in `obj` (an array, or a dict / list of them) that are not in
+    `seen` (ids of the arrays counted so far, a NumPy view by its base's: a solver's kept plan holds the scratch
+    arrays the crowd holds)."""
     from taichi.lang._ndarray import Ndarray
     from taichi.lang.util import to_numpy_type
 
-    if isinstance(obj, np.ndarray):
-        return int(obj.nbytes)
-    if isinstance(obj, Ndarray):
-        elem = int(np.prod(getattr(obj, "element_shape", ()) or (1,)))
-        return int(np.prod(obj.shape)) * elem * np.dtype(to_numpy_type(obj.dtype)).itemsize
+    if isinstance(obj, (np.ndarray, Ndarray)):
+        owner = obj
+        while isinstance(owner, np.ndarray) and isinstance(owner.base, np.ndarray):
+            owner = owner.base
+        if id(owner) in seen:
+            return 0
+        seen.add(id(owner))
+        if isinstance(owner, np.ndarray):
+            return int(owner.nbytes)
+        elem = int(np.prod(getattr(owner, "element_shape", ()) or (1,)))
+        return int(np.prod(owner.shape)) * elem * np.dtype(to_numpy_type(owner.dtype)).itemsize
     if isinstance(obj, dict):
-        return sum(_ndarray_bytes(v) for v in obj.values())
+        return sum(_ndarray_bytes(v, seen) for v in obj.values())
     if isinstance(obj, (list, tuple)):
-        return sum(_ndarray_bytes(v) for v in obj)
+        return sum(_ndarray_bytes(v, seen) for v in obj)
     return 0
 
 
 def crowd_bytes(crowd) -> int:
     """Bytes of per-character state a Crowd holds now, Taichi and host arrays (solver scratch included, the shared
-    rig not)."""
-    return sum(_ndarray_bytes(v) for k, v in vars(crowd).items() if k != "rig_arrays")
+    rig not), each array once."""
+    seen: set = set()
+    return sum(_ndarray_bytes(v, seen) for k, v in vars(crowd).items() if k != "rig_arrays")
 
 
 def _solve_timed(crowd, wl: Workload, solver: str, max_iterations: int | None = None):
