@@ -29,6 +29,8 @@ def test_world_steps_and_renders():
     assert frame.shape == (64, 96, 3) and frame.dtype == np.uint8
     for _ in range(5):
         world.step()
+    its = world.characters.last_iterations  # the last world step's solve, per character
+    assert its.shape == (world.characters.n,) and np.all((its >= 0) & (its <= world.scene.solver.iterations))
     frame = world.render()
     assert frame.shape == (64, 96, 3)
     assert frame.std() > 5  # not a blank image

@@ -46,9 +46,11 @@ def test_step_solve_equals_crowd_solve_step_after_step():
             np.testing.assert_array_equal(getattr(got, field), getattr(want, field))
         assert np.array_equal(a.rotations(), b.rotations()) and np.array_equal(a.joint_positions(), b.joint_positions())
         assert step(targets, weights, poles, report=False) is None  # the same solve again, without a report
-        a.solve(targets, method="fabrik", max_iterations=6, tolerance=0.004, weights=weights, orientations=orient,
-                poles=poles)
+        again = a.solve(targets, method="fabrik", max_iterations=6, tolerance=0.004, weights=weights,
+                        orientations=orient, poles=poles)
         assert np.array_equal(a.world_rotations(), b.world_rotations())
+        # what game.characters keeps of an unreported solve (last_iterations): the crowd's iterations buffer
+        np.testing.assert_array_equal(b.buffers.iterations, again.iterations)
 
 
 def test_refill_refuses_a_change_of_form():

@@ -341,9 +341,9 @@ def game_scene(steps: int, name: str = GAME_SCENE, warmup: int = GAME_SCENE_WARM
         ik.append(ms["ik"])
         bullets.append(ms["bullets"])
         total.append(ms["total"])
-        rep = world.characters.last_report
-        solving.append(float(np.mean(rep.iterations > 0)))
-        iters.append(float(rep.iterations.mean()))
+        its = world.characters.last_iterations
+        solving.append(float(np.mean(its > 0)))
+        iters.append(float(its.mean()))
         alive.append(world.stats["bullets"])
     frame = _ms_stats(np.asarray(ik) + np.asarray(bullets))
     return dict(scene=name, n=int(scene.characters.count), steps=steps, warmup_steps=warmup,
