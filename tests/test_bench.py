@@ -269,7 +269,8 @@ def test_game_scene_times_the_world_as_played():
     assert 0 < sc["ik_ms"]["median"] and 0 <= sc["bullets_ms"]["median"]
     assert sc["frame_ms"]["max"] <= sc["ik_ms"]["max"] + sc["bullets_ms"]["max"] + 1e-9
     assert sc["step_ms"]["median"] >= sc["ik_ms"]["median"]  # the whole step holds both phases
-    assert 0.0 < sc["solving"] <= 1.0 and 0.0 < sc["mean_iterations"] <= 4.0 and sc["fits"] == (sc["frame_ms"]["p95"] <= options.FRAME_MS)
+    assert 0.0 < sc["solving"] <= 1.0 and 0.0 < sc["mean_iterations"] <= 4.0
+    assert sc["fits"] == (sc["frame_ms"]["p95"] <= options.FRAME_MS)
     line = report.format_scene(sc)
     assert "as played, duel scene" in line and ("fits" in line or "does NOT fit" in line)
     names = [t["name"] for t in report.evaluate_targets([], [dict(arch="cpu", n=4, frame_ms=dict(p95=1.0), fits=True,
