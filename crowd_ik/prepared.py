@@ -16,8 +16,9 @@ arrays and anything it does not handle (a return value, unsigned or vector scala
 gradient) go through the ordinary call, which also compiles and checks; arrays are bound the second time they
 are seen together, so fresh temporaries cost nothing more. On CUDA every call is the ordinary one: there
 Taichi's launcher copies host arrays to the device and back around each launch, and a kept context launched
-again crashed the process (segfaults in the solver tests and `play` on an H200; the cause inside Taichi was not traced). Bound arrays must not be resized in place (NumPy's ndarray.resize). The
-prepared launch runs the same compiled kernel on the same memory, so results are identical (tests/test_prepared.py).
+again crashed the process (segfaults in the solver tests and `play` on an H200; the cause inside Taichi was not
+traced). Bound arrays must not be resized in place (NumPy's ndarray.resize). The prepared launch runs the same
+compiled kernel on the same memory, so results are identical (tests/test_prepared.py).
 """
 
 from __future__ import annotations
