@@ -1,5 +1,7 @@
 """Taichi kernels of the walking crowd (crowd_ik/game/gait.py, crowd_ik/game/crowd_motion.py).
 
+gait_step: every body's footsteps (a swing advances and lands, a step starts, the footprint follows the body),
+then its ankles' targets and the walk's pelvis bob, hand swing and head lean (twin: crowd_ik/reference/gait.py).
 plant_legs: after the batched solve, both legs of every humanoid are set analytically (two-bone IK:
 hip ball joint, knee hinge, universal ankle) so that each ankle lands exactly on its footprint and
 the sole stays flat; the legs' world transforms are rewritten in the same pass (no second FK).
@@ -183,3 +185,118 @@ def separate(
                                     q += unit * (limit - dist) * share
         steer[i] = s
         push[i] = q
+
+
+# gait_step's parameters (crowd_ik/game/gait.py: its constants, lengths and speeds times the bodies' scale), in the
+# order of its `params` array
+GAIT_PARAMS = ("step_length", "step_per_speed", "step_max", "step_time_min", "step_time_max", "walking",
+               "stand_tolerance", "lift_share", "step_lift", "bob", "bob_speed", "arm_swing", "arm_max", "head_lean",
+               "small_step")
+
+
+@ti.func
+def step_period(p: ti.template(), speed):
+    """A step's duration at speed m/s: step length / speed, clamped (game.gait: STEP_LENGTH ... STEP_TIME)."""
+    length = ti.min(p[0] + p[1] * speed, p[2])
+    return ti.min(ti.max(length / ti.max(speed, 1e-6), p[3]), p[4])
+
+
+@ti.func
+def yaw_turn(v, c, s):
+    """geometry.vectors.yaw_rotate of v by the yaw whose cosine and sine are c, s."""
+    return vec3(c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2])
+
+
+@ti.kernel
+def gait_step(
+    ground: ndarray(dtype=vec3, ndim=1),
+    yaw: ndarray(ndim=1),
+    velocity: ndarray(dtype=vec3, ndim=1),
+    active: ndarray(dtype=ti.i32, ndim=1),
+    foot_local: ndarray(dtype=vec3, ndim=1),
+    params: ndarray(ndim=1),
+    dt: ti.f32,
+    feet: ndarray(dtype=vec3, ndim=2),
+    swing: ndarray(dtype=ti.i32, ndim=1),
+    progress: ndarray(ndim=1),
+    period: ndarray(ndim=1),
+    start: ndarray(dtype=vec3, ndim=1),
+    goal: ndarray(dtype=vec3, ndim=1),
+    last: ndarray(dtype=ti.i32, ndim=1),
+    started: ndarray(dtype=ti.i32, ndim=1),
+    targets: ndarray(dtype=vec3, ndim=2),
+    bob: ndarray(ndim=1),
+    hands: ndarray(dtype=vec3, ndim=2),
+    head: ndarray(dtype=vec3, ndim=1),
+    serial: ti.template(),
+):
+    """One gait step of dt s for N bodies (crowd_ik/game/gait.py's module docstring; twin:
+    crowd_ik/reference/gait.py), then their foot targets and walk pose.
+
+    In: ground (N, 3) pelvises on the ground (y ignored), yaw (N,), velocity (N, 3) m/s (y ignored), active (N,)
+    1 for bodies that may start a step; foot_local (2, 3) the ankles under the root at yaw 0; params (GAIT_PARAMS).
+    State, updated: feet (N, 2) planted footprints, swing (N,) the foot in the air or -1, its progress (N,) in
+    [0, 1) and period (N,) s, start / goal (N, 3) of the swing, last (N,) the foot that stepped last; started[0]
+    counts the steps begun. Out: targets (N, 2) the ankles' targets (the swinging one on its arc), bob (N,) the
+    pelvis rise, hands (N, 2) the hands' offsets, head (N,) the head's."""
+    ti.loop_config(serialize=serial)
+    for n in range(ground.shape[0]):
+        g = vec3(ground[n][0], 0.0, ground[n][2])
+        c, s = ti.cos(yaw[n]), ti.sin(yaw[n])
+        v = vec3(velocity[n][0], 0.0, velocity[n][2])
+        speed = v.norm()
+        # 1. the swing advances; a foot that lands is planted on its goal
+        if swing[n] >= 0:
+            progress[n] += dt / period[n]
+            if progress[n] >= 1.0:
+                feet[n, swing[n]] = goal[n]
+                last[n] = swing[n]
+                swing[n] = -1
+                progress[n] = 0.0
+        # 2. a new step: the other foot while walking, else the one farthest from its place under the body
+        d0 = feet[n, 0] - (g + yaw_turn(foot_local[0], c, s))
+        d1 = feet[n, 1] - (g + yaw_turn(foot_local[1], c, s))
+        lag0 = vec2(d0[0], d0[2]).norm()
+        lag1 = vec2(d1[0], d1[2]).norm()
+        walking = speed > params[5]
+        if swing[n] < 0 and active[n] != 0 and (walking or ti.max(lag0, lag1) > params[6]):
+            foot = 0
+            if walking:
+                foot = 1 - last[n]
+            elif lag1 > lag0:
+                foot = 1
+            start[n] = feet[n, foot]
+            swing[n] = foot
+            progress[n] = 0.0
+            period[n] = step_period(params, speed)
+            ti.atomic_add(started[0], 1)
+        # 3. the swing's footprint from the body now: it shortens when the body speeds up and, until its set-down,
+        # follows the body predicted at the landing plus half a step's lead
+        if swing[n] >= 0:
+            period[n] = ti.min(period[n], step_period(params, speed))
+            if progress[n] < 1.0 - params[7]:
+                landing = g + v * ((1.0 - progress[n]) * period[n])
+                goal[n] = landing + yaw_turn(foot_local[swing[n]], c, s) + v * (0.5 * period[n])
+        # 4. the ankles' targets: the planted feet, the swinging one on an arc (lifts, moves along a smoothstep,
+        # sets down), lower for a small step
+        mid = 0.0
+        for f in ti.static(range(2)):
+            targets[n, f] = feet[n, f]
+        if swing[n] >= 0:
+            t = progress[n]
+            h = ti.min(ti.max((t - params[7]) / (1.0 - 2.0 * params[7]), 0.0), 1.0)
+            h = h * h * (3.0 - 2.0 * h)
+            a, b = start[n], goal[n]
+            q = a + (b - a) * h
+            q[1] += params[8] * ti.min(1.0, vec2(b[0] - a[0], b[2] - a[2]).norm() / params[14]) * ti.sin(3.141592653589793 * t)
+            targets[n, swing[n]] = q
+            mid = ti.sin(3.141592653589793 * t)
+        # 5. the walk's pose: the pelvis rises mid-swing, the hands swing against the feet, the head leans in
+        gain = ti.min(1.0, speed / params[10])
+        bob[n] = params[9] * gain * (mid - 0.5)
+        fwd = vec3(s, 0.0, c)
+        split = (targets[n, 1] - targets[n, 0]).dot(fwd)
+        arm = ti.min(ti.max(params[11] * split, -params[12]), params[12]) * gain
+        hands[n, 0] = fwd * arm
+        hands[n, 1] = -fwd * arm
+        head[n] = fwd * (params[13] * gain)

@@ -10,6 +10,7 @@ from crowd_ik.game.gait import Gait, leg_joints, plant_legs
 from crowd_ik.game.world import DT, World
 from crowd_ik.kernels import gait_kernels as gk
 from crowd_ik.reference import gait_kernels as ref
+from crowd_ik.reference.gait import GaitTwin
 from crowd_ik.rig import Rig
 from crowd_ik.scene import load_scene, scene_with
 
@@ -85,6 +86,53 @@ def test_separate_matches_brute_force_twin(serial):
     np.testing.assert_allclose(push, want_push, atol=1e-5)
     assert np.linalg.norm(push[4]) > 0.1 and np.linalg.norm(push[5]) > 0.1
     assert np.all(steer[kind != 1] == 0.0) and np.any(push[kind == 1] != 0.0)
+
+
+STATE = ("feet", "swing", "progress", "period", "start", "goal", "last")
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.6])
+def test_gait_step_matches_the_twin_step_after_step(scale):
+    """gait_step against reference/gait.py from the same state, every step of a crowd that starts, stops, turns and
+    changes speed (some bodies inactive): the same swings and landings, feet, targets and pose within float32
+    rounding (the twin's NumPy sin / cos against the kernel's). Each step starts from the twin's state, so a
+    decision that a last-ulp difference flipped would stay one step's (none did when this was written)."""
+    body = Body(Rig.humanoid(1.75 * scale), scale=scale)
+    n = 48
+    rng = np.random.default_rng(7)
+    ground = rng.uniform(-3.0, 3.0, (n, 3)).astype(np.float32) * np.float32([1, 0, 1])
+    yaw = rng.uniform(-3.0, 3.0, n).astype(np.float32)
+    gait = Gait(body, ground, yaw)
+    twin = GaitTwin(gait.foot_local, scale, {k: getattr(gait, k) for k in STATE} | {"steps": 0})
+    speed = rng.uniform(0.0, 2.2, n) * scale
+    agree = []
+    for k in range(150):
+        if k % 30 == 0:  # new speeds (some standing) and headings now and then
+            speed = np.where(rng.random(n) < 0.3, 0.0, rng.uniform(0.2, 2.2, n) * scale)
+            yaw = (yaw + rng.normal(0.0, 0.6, n)).astype(np.float32)
+        vel = (np.stack([np.sin(yaw), np.zeros(n), np.cos(yaw)], 1) * speed[:, None]).astype(np.float32)
+        ground = (ground + vel * DT).astype(np.float32)
+        active = rng.random(n) > 0.1
+        for name in STATE:  # both from the twin's state
+            np.copyto(getattr(gait, name), getattr(twin, name))
+        started, twin_started = gait.steps, twin.steps
+        gait.step(ground, yaw, vel, DT, active)
+        want_targets, want_bob, want_hands, want_head = twin.step(ground, yaw, vel, DT, active)
+        same = (gait.swing == twin.swing) & (gait.last == twin.last)
+        agree.append(same.mean())
+        if same.all():
+            assert gait.steps - started == twin.steps - twin_started
+        for name in ("feet", "start", "goal"):
+            np.testing.assert_allclose(getattr(gait, name)[same], getattr(twin, name)[same], atol=2e-5 * scale)
+        np.testing.assert_allclose(gait.progress[same], twin.progress[same], atol=1e-6)
+        np.testing.assert_allclose(gait.period[same], twin.period[same], rtol=1e-6)
+        np.testing.assert_allclose(gait.targets()[same], want_targets[same], atol=2e-5 * scale)
+        bob, hands, head = gait.pose()
+        np.testing.assert_allclose(bob[same], want_bob[same], atol=1e-6)
+        np.testing.assert_allclose(hands[same], want_hands[same], atol=2e-6)
+        np.testing.assert_allclose(head[same], want_head[same], atol=2e-6)
+    assert np.mean(agree) >= 0.999 and twin.steps > n  # the bodies stepped, the same way
+    assert np.any(twin.swing >= 0) and np.any(twin.swing < 0)
 
 
 def test_gait_steps_ahead_and_holds_stance_feet():

@@ -158,7 +158,7 @@ class Characters:
             self.yaw = m.yaw.astype(np.float32)
         self.gait.step(self.ground, self.yaw, self.velocity, dt, self.alive)
         feet = self.gait.targets()
-        bob, hands, head = self.gait.pose(self.yaw, m.walking_speed, feet)
+        bob, hands, head = self.gait.pose()
         targets = b.rest_targets(self.ground, self.yaw)
         targets[:, self._hand_rows] += hands
         targets[:, 0] += head
