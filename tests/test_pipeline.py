@@ -97,6 +97,19 @@ def test_pipelined_frames_are_the_serial_frames_bit_for_bit(scene, slots, on_wri
     assert np.array_equal(world.render(), classic[-1])  # the renderer draws the same frame again after it
 
 
+@pytest.mark.parametrize("on_writer", [False, True])
+def test_a_slow_writer_is_waited_for_once_in_the_stages(scene, on_writer):
+    """With a slow sink the main thread waits for free buffers inside the renderer's raster step (its frame_source
+    is the writer's take): the wait counts once, so the draw (its wait and overlay painting taken out) still
+    splits into primitives + raster, none negative."""
+    sink = ListSink(delay=0.02)
+    _, stats, _ = _run(scene, serial=False, sink=sink, slots=2, overlay_on_writer=on_writer)
+    st = stats["stages_ms"]
+    assert st["wait"] > 5.0  # most of each 20 ms write is waited for
+    assert min(st.values()) >= 0.0
+    assert st["draw"] == pytest.approx(st["primitives"] + st["raster"], abs=1e-9)
+
+
 def test_frames_keep_their_order_and_none_is_dropped_or_overwritten():
     # two slots and a slow sink: the main thread must wait for a buffer instead of reusing one in flight
     sink = ListSink(size=(32, 16), delay=0.004)

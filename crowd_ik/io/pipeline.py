@@ -234,6 +234,8 @@ def render_video(world, steps, sink, *, serial: bool = False, slots: int = DEFAU
     if writer is not None:
         write_s, wait = writer.write_s, writer.wait_s
         draw -= wait  # the main thread waited inside draw for a free buffer
+        if not remote:
+            raster_s -= wait  # ... inside the renderer's raster time (its frame_source is writer.take)
     if remote:
         raster_s, overlay_s = writer.raster_s, writer.overlay_s
         primitives = draw
