@@ -24,8 +24,8 @@ def lane_layout(n: int, serial: bool = False) -> tuple[int, int, int, bool]:
 
 
 def _plan(crowd) -> tuple:
-    """(serial, streams, packets, proposals, solve kernel, recover kernel, recover's streams) of this crowd at the
-    current lane width, made once per width (a solve of 100 chains is ~130 us: the plan's ~10 us counted)."""
+    """(serial, the solve's streams, proposals, solve kernel, recover kernel, the recovery's streams) of this crowd
+    at the current lane width, made once per width (a solve of 100 chains is ~130 us: the plan's ~10 us counted)."""
     from crowd_ik.kernels import fabrik_lanes, lane_plan
 
     L = settings.lanes()

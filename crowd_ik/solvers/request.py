@@ -87,13 +87,15 @@ def check_request(rig: Rig, n: int, targets, method, max_iterations, tolerance, 
     tgt = as_array(targets, "targets", (n, E, dim), limit=MAX_EXTENT)
     if np.shape(targets) != (n, E, dim):
         raise ValueError(f"targets: expected shape {(n, E, dim)} (got {np.shape(targets)})")
-    if weights is None:
+    if weights is None:  # ones: positive wherever there is an effector
         w = np.ones((n, E), np.float32)
+        some_positive = w.size > 0
     else:
         w = as_array(weights, "weights", (n, E))
         if np.any(w < 0):
             raise ValueError(f"weights: must be >= 0 (got {float(w.min())})")
-    if not w.size or (weights is not None and not np.any(w > 0)):
+        some_positive = bool(np.any(w > 0))
+    if not some_positive:
         raise ValueError("weights: at least one effector needs a positive weight")
     orient = None
     if orientations is not None:
