@@ -188,17 +188,20 @@ def separate(
 
 
 # gait_step's parameters (crowd_ik/game/gait.py: its constants, lengths and speeds times the bodies' scale), in the
-# order of its `params` array
+# order of its `params` array; the kernel reads them by these indices
 GAIT_PARAMS = ("step_length", "step_per_speed", "step_max", "step_time_min", "step_time_max", "walking",
                "stand_tolerance", "lift_share", "step_lift", "bob", "bob_speed", "arm_swing", "arm_max", "head_lean",
                "small_step")
+(P_STEP_LENGTH, P_STEP_PER_SPEED, P_STEP_MAX, P_STEP_TIME_MIN, P_STEP_TIME_MAX, P_WALKING, P_STAND_TOLERANCE,
+ P_LIFT_SHARE, P_STEP_LIFT, P_BOB, P_BOB_SPEED, P_ARM_SWING, P_ARM_MAX, P_HEAD_LEAN,
+ P_SMALL_STEP) = range(len(GAIT_PARAMS))
 
 
 @ti.func
 def step_period(p: ti.template(), speed):
     """A step's duration at speed m/s: step length / speed, clamped (game.gait: STEP_LENGTH ... STEP_TIME)."""
-    length = ti.min(p[0] + p[1] * speed, p[2])
-    return ti.min(ti.max(length / ti.max(speed, 1e-6), p[3]), p[4])
+    length = ti.min(p[P_STEP_LENGTH] + p[P_STEP_PER_SPEED] * speed, p[P_STEP_MAX])
+    return ti.min(ti.max(length / ti.max(speed, 1e-6), p[P_STEP_TIME_MIN]), p[P_STEP_TIME_MAX])
 
 
 @ti.func
@@ -258,8 +261,8 @@ def gait_step(
         d1 = feet[n, 1] - (g + yaw_turn(foot_local[1], c, s))
         lag0 = vec2(d0[0], d0[2]).norm()
         lag1 = vec2(d1[0], d1[2]).norm()
-        walking = speed > params[5]
-        if swing[n] < 0 and active[n] != 0 and (walking or ti.max(lag0, lag1) > params[6]):
+        walking = speed > params[P_WALKING]
+        if swing[n] < 0 and active[n] != 0 and (walking or ti.max(lag0, lag1) > params[P_STAND_TOLERANCE]):
             foot = 0
             if walking:
                 foot = 1 - last[n]
@@ -274,7 +277,7 @@ def gait_step(
         # follows the body predicted at the landing plus half a step's lead
         if swing[n] >= 0:
             period[n] = ti.min(period[n], step_period(params, speed))
-            if progress[n] < 1.0 - params[7]:
+            if progress[n] < 1.0 - params[P_LIFT_SHARE]:
                 landing = g + v * ((1.0 - progress[n]) * period[n])
                 goal[n] = landing + yaw_turn(foot_local[swing[n]], c, s) + v * (0.5 * period[n])
         # 4. the ankles' targets: the planted feet, the swinging one on an arc (lifts, moves along a smoothstep,
@@ -284,19 +287,20 @@ def gait_step(
             targets[n, f] = feet[n, f]
         if swing[n] >= 0:
             t = progress[n]
-            h = ti.min(ti.max((t - params[7]) / (1.0 - 2.0 * params[7]), 0.0), 1.0)
+            h = ti.min(ti.max((t - params[P_LIFT_SHARE]) / (1.0 - 2.0 * params[P_LIFT_SHARE]), 0.0), 1.0)
             h = h * h * (3.0 - 2.0 * h)
             a, b = start[n], goal[n]
             q = a + (b - a) * h
-            q[1] += params[8] * ti.min(1.0, vec2(b[0] - a[0], b[2] - a[2]).norm() / params[14]) * ti.sin(3.141592653589793 * t)
+            reach = vec2(b[0] - a[0], b[2] - a[2]).norm()
+            q[1] += params[P_STEP_LIFT] * ti.min(1.0, reach / params[P_SMALL_STEP]) * ti.sin(3.141592653589793 * t)
             targets[n, swing[n]] = q
             mid = ti.sin(3.141592653589793 * t)
         # 5. the walk's pose: the pelvis rises mid-swing, the hands swing against the feet, the head leans in
-        gain = ti.min(1.0, speed / params[10])
-        bob[n] = params[9] * gain * (mid - 0.5)
+        gain = ti.min(1.0, speed / params[P_BOB_SPEED])
+        bob[n] = params[P_BOB] * gain * (mid - 0.5)
         fwd = vec3(s, 0.0, c)
         split = (targets[n, 1] - targets[n, 0]).dot(fwd)
-        arm = ti.min(ti.max(params[11] * split, -params[12]), params[12]) * gain
+        arm = ti.min(ti.max(params[P_ARM_SWING] * split, -params[P_ARM_MAX]), params[P_ARM_MAX]) * gain
         hands[n, 0] = fwd * arm
         hands[n, 1] = -fwd * arm
-        head[n] = fwd * (params[13] * gain)
+        head[n] = fwd * (params[P_HEAD_LEAN] * gain)
