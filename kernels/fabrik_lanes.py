@@ -25,10 +25,10 @@ The streams' scratch lives in fields of compile-time shape (a row per stream, la
 CPU, of a power-of-two joint capacity), not in ndarrays: LLVM reloads an ndarray's pointer and shape after every
 store to any array, and that integer work was a third of the passes' instructions (chain16, 16,384 characters: 13.9
 -> 8.8 ms). On CUDA (one lane) a stream is a GPU thread, lane_plan.GPU_STREAMS of them, and the rows are laid out
-joint-major so that a warp's reads of one joint coalesce (lane_plan.stream_rows). Per lane the arithmetic is that of the one-character solver (kernels/fabrik.py's passes and
-recovery; the NumPy twin's ``fabrik_solve`` without constraints) in the same order, except that a
-normalisation multiplies by one reciprocal (kernels/lane_math.py), so statuses and iteration counts
-match it and results do not depend on a character's lane-mates.
+joint-major so that a warp's reads of one joint coalesce (lane_plan.stream_rows). Per lane the arithmetic is that
+of the one-character solver (kernels/fabrik.py's passes and recovery; the NumPy twin's ``fabrik_solve`` without
+constraints) in the same order, except that a normalisation multiplies by one reciprocal (kernels/lane_math.py), so
+statuses and iteration counts match it and results do not depend on a character's lane-mates.
 
 Positions relative to the root: both kernels work on a character's joint positions and targets minus its root_pos
 (exact differences of float32 world values) and add it back once on the way out. In world coordinates float32's

@@ -5,8 +5,9 @@ size their scratch fields and launches with these, and Crowd passes the stream c
 """
 
 MAX_STREAMS = 256  # streams per launch (the scratch fields hold this many; larger crowds get longer streams)
-# On CUDA (one lane) each stream is a GPU thread: enough to fill an H100 or H200 (132 SMs x 1,024 resident threads) with
-# some to spare, so a million characters make streams of about 8 (a warp's threads then run similar totals of iterations)
+# On CUDA (one lane) each stream is a GPU thread: enough to fill an H100 or H200 (132 SMs x 1,024 resident threads)
+# with some to spare, so a million characters make streams of about 8 (a warp's threads then run similar totals of
+# iterations)
 GPU_STREAMS = 1 << 17
 CHARS_PER_LANE = 32  # characters a stream's lane works through on average (more streams balance threads)
 

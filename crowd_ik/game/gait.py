@@ -47,6 +47,14 @@ HEAD_LEAN = 0.05  # m: the head leans this far forward at full speed, times the 
 SMALL_STEP = 0.15  # m: a step shorter than this lifts the foot less (in proportion), times the scale
 
 
+def foot_homes(foot_local: np.ndarray, ground: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) float32: where ankles at foot_local (2, 3) under the root at yaw 0 stand under bodies at ground
+    (N, 3) (its y ignored), yaw (N,)."""
+    g = np.asarray(ground, np.float32) * np.float32([1.0, 0.0, 1.0])
+    turned = yaw_rotate(foot_local[None], np.asarray(yaw, np.float32)[:, None])
+    return (g[:, None, :] + turned).astype(np.float32)
+
+
 class Gait:
     """Footprints and swings of N bodies of `body` (a humanoid) standing at ground (N, 3), yaw (N,).
 
@@ -91,8 +99,7 @@ class Gait:
 
     def homes(self, ground: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         """(N, 2, 3) where the ankles stand under bodies at ground (N, 3) (y = 0), yaw (N,)."""
-        g = np.asarray(ground, np.float32) * np.float32([1.0, 0.0, 1.0])
-        return (g[:, None, :] + yaw_rotate(self.foot_local[None], np.asarray(yaw, np.float32)[:, None])).astype(np.float32)
+        return foot_homes(self.foot_local, ground, yaw)
 
     def step(self, ground: np.ndarray, yaw: np.ndarray, velocity: np.ndarray, dt: float, active: np.ndarray) -> None:
         """Advance the swings by dt s and start new steps for bodies at ground (N, 3), yaw (N,), moving at

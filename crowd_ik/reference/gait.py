@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from crowd_ik.game.gait import (ARM_MAX, ARM_SWING, BOB, BOB_SPEED, HEAD_LEAN, LIFT_SHARE, STAND_TOLERANCE, STEP_LENGTH,
-                                SMALL_STEP, STEP_LIFT, STEP_MAX, STEP_PER_SPEED, STEP_TIME, WALKING)
-from crowd_ik.geometry.vectors import yaw_rotate
+from crowd_ik.game.gait import (ARM_MAX, ARM_SWING, BOB, BOB_SPEED, HEAD_LEAN, LIFT_SHARE, SMALL_STEP,
+                                STAND_TOLERANCE, STEP_LENGTH, STEP_LIFT, STEP_MAX, STEP_PER_SPEED, STEP_TIME, WALKING,
+                                foot_homes)
 
 
 def smoothstep(x: np.ndarray) -> np.ndarray:
@@ -32,8 +32,7 @@ class GaitTwin:
 
     def homes(self, ground: np.ndarray, yaw: np.ndarray) -> np.ndarray:
         """(N, 2, 3) where the ankles stand under bodies at ground (N, 3) (y ignored), yaw (N,)."""
-        g = np.asarray(ground, np.float32) * np.float32([1.0, 0.0, 1.0])
-        return (g[:, None, :] + yaw_rotate(self.foot_local[None], np.asarray(yaw, np.float32)[:, None])).astype(np.float32)
+        return foot_homes(self.foot_local, ground, yaw)
 
     def step(self, ground: np.ndarray, yaw: np.ndarray, velocity: np.ndarray, dt: float, active: np.ndarray):
         """Advance dt s; returns (targets (N, 2, 3), bob (N,), hands (N, 2, 3), head (N, 3)) after the step."""
